@@ -1,0 +1,196 @@
+//! Axis-aligned boxes (SEMANTICS S0, S1).
+
+use glam::{Affine3A, Vec3};
+
+use super::SpatialError;
+
+/// The largest coordinate magnitude a valid box may have, in metres.
+///
+/// Far beyond any game world, yet small enough that sums and products used by
+/// the tree's heuristics (computed in `f64`) can never overflow.
+pub const MAX_COORD: f32 = 1e15;
+
+/// A closed, axis-aligned box in world space, stored as `min` / `max` corners.
+///
+/// Faces, edges and corners belong to the box. A box is *valid* when all six
+/// numbers are finite, `min <= max` on every axis and every magnitude is at
+/// most [`MAX_COORD`]. Zero extent (points, flat boxes) is valid; `-0.0` and
+/// `+0.0` are the same number.
+///
+/// The fields are public because an `Aabb` is a plain value; every entry point
+/// of the index checks validity and refuses an invalid box with
+/// [`SpatialError::InvalidBox`].
+///
+/// ```
+/// use bevy_rtree::Aabb;
+/// use glam::Vec3;
+///
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+/// let touching = Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0))?;
+/// assert!(unit.intersects(&touching)); // closed boxes: a shared face counts
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// The corner with the smallest coordinates.
+    pub min: Vec3,
+    /// The corner with the largest coordinates.
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The inverted box (`min = +inf`, `max = -inf`): the identity of
+    /// [`Aabb::union`] and a box that intersects nothing. Not valid as an entry.
+    pub const INVERTED: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
+
+    /// A checked box from its corners.
+    pub fn new(min: Vec3, max: Vec3) -> Result<Aabb, SpatialError> {
+        let aabb = Aabb { min, max };
+        aabb.validate()?;
+        Ok(aabb)
+    }
+
+    /// A checked box from a centre and non-negative half extents.
+    ///
+    /// The corners are computed once, in `f32`; the box is stored as min/max
+    /// from then on (SEMANTICS S0 explains why never centre/half-extents).
+    pub fn from_center_half_extents(center: Vec3, half: Vec3) -> Result<Aabb, SpatialError> {
+        if !(half.cmpge(Vec3::ZERO).all()) {
+            return Err(SpatialError::InvalidBox);
+        }
+        Aabb::new(center - half, center + half)
+    }
+
+    /// The zero-extent box at `point`.
+    pub fn from_point(point: Vec3) -> Result<Aabb, SpatialError> {
+        Aabb::new(point, point)
+    }
+
+    /// Whether the box is valid as an entry or query (see the type docs).
+    pub fn is_valid(&self) -> bool {
+        let bound = Vec3::splat(MAX_COORD);
+        // Written with `<=` on finite values only: NaN fails every comparison.
+        self.min.is_finite()
+            && self.max.is_finite()
+            && self.min.cmple(self.max).all()
+            && self.min.abs().cmple(bound).all()
+            && self.max.abs().cmple(bound).all()
+    }
+
+    /// `Ok(())` when [`Aabb::is_valid`], else [`SpatialError::InvalidBox`].
+    pub fn validate(&self) -> Result<(), SpatialError> {
+        if self.is_valid() {
+            Ok(())
+        } else {
+            Err(SpatialError::InvalidBox)
+        }
+    }
+
+    /// Whether the two closed boxes share at least one point.
+    #[inline]
+    pub fn intersects(&self, other: &Aabb) -> bool {
+        super::predicates::boxes_overlap(self, other)
+    }
+
+    /// Whether `other` lies entirely inside `self` (faces may coincide).
+    #[inline]
+    pub fn contains(&self, other: &Aabb) -> bool {
+        self.min.cmple(other.min).all() && other.max.cmple(self.max).all()
+    }
+
+    /// Whether the closed box contains `point`.
+    #[inline]
+    pub fn contains_point(&self, point: Vec3) -> bool {
+        self.min.cmple(point).all() && point.cmple(self.max).all()
+    }
+
+    /// The smallest box containing both.
+    #[inline]
+    pub fn union(&self, other: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
+    /// The box grown by `amount` (per axis, non-negative) on every side.
+    #[inline]
+    pub fn grown(&self, amount: Vec3) -> Aabb {
+        Aabb {
+            min: self.min - amount,
+            max: self.max + amount,
+        }
+    }
+
+    /// Extent per axis (`max - min`).
+    #[inline]
+    pub fn extent(&self) -> Vec3 {
+        self.max - self.min
+    }
+
+    /// The centre, computed in `f64` so that it cannot overflow for valid boxes.
+    #[inline]
+    pub fn center_f64(&self) -> [f64; 3] {
+        let c = |i: usize| (self.min[i] as f64 + self.max[i] as f64) * 0.5;
+        [c(0), c(1), c(2)]
+    }
+
+    /// Half the surface area, in `f64` (cannot overflow for valid boxes).
+    /// Zero-extent boxes have zero area; the tree's heuristics pair it with
+    /// [`Aabb::margin`] so flat boxes still order sensibly.
+    #[inline]
+    pub fn half_area(&self) -> f64 {
+        let e = self.extent().as_dvec3();
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+
+    /// The sum of extents (the R*-tree "margin"), in `f64`.
+    #[inline]
+    pub fn margin(&self) -> f64 {
+        let e = self.extent().as_dvec3();
+        e.x + e.y + e.z
+    }
+
+    /// The world box of a local box under an affine transform (SEMANTICS S1).
+    ///
+    /// centre' = M * centre, half' = |M3x3| * half; unless the transform is a
+    /// pure translation, min is rounded down and max up by one ulp so that the
+    /// result still contains the exact image far from the origin.
+    ///
+    /// ```
+    /// use bevy_rtree::Aabb;
+    /// use glam::{Affine3A, Vec3};
+    ///
+    /// let local = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?;
+    /// let world = local.transformed(&Affine3A::from_translation(Vec3::X * 10.0))?;
+    /// assert_eq!(world.min, Vec3::new(9.0, -1.0, -1.0));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn transformed(&self, transform: &Affine3A) -> Result<Aabb, SpatialError> {
+        self.validate()?;
+        let m = transform.matrix3;
+        if !(m.is_finite() && transform.translation.is_finite()) {
+            return Err(SpatialError::InvalidBox);
+        }
+        let pure_translation = m == glam::Mat3A::IDENTITY;
+        if pure_translation {
+            let t = Vec3::from(transform.translation);
+            return Aabb::new(self.min + t, self.max + t);
+        }
+        let center = (self.min + self.max) * 0.5;
+        let half = (self.max - self.min) * 0.5;
+        let world_center = transform.transform_point3(center);
+        let abs = glam::Mat3::from_cols(
+            Vec3::from(m.x_axis).abs(),
+            Vec3::from(m.y_axis).abs(),
+            Vec3::from(m.z_axis).abs(),
+        );
+        let world_half = abs * half;
+        let min = (world_center - world_half).to_array().map(f32::next_down);
+        let max = (world_center + world_half).to_array().map(f32::next_up);
+        Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
+    }
+}

@@ -1,0 +1,159 @@
+//! View frustums as eye-relative half-spaces (SEMANTICS S7).
+
+use glam::{Quat, Vec3};
+
+use super::SpatialError;
+
+/// One half-space of a frustum, relative to the frustum's eye.
+///
+/// A point `p` is inside when `dot(normal, p - eye) + offset > 0`. The pattern
+/// `normal = 0, offset = +inf` is *inactive*: it never culls (an infinite far
+/// plane). Any other plane needs a finite, non-zero normal and a finite offset.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HalfSpace {
+    /// Points towards the inside. Need not be unit length.
+    pub normal: Vec3,
+    /// Offset relative to the eye: `dot(normal, p - eye) + offset`.
+    pub offset: f32,
+}
+
+impl HalfSpace {
+    /// The plane that never culls.
+    pub const INACTIVE: HalfSpace = HalfSpace {
+        normal: Vec3::ZERO,
+        offset: f32::INFINITY,
+    };
+
+    /// Whether this is the inactive pattern.
+    #[inline]
+    pub fn is_inactive(&self) -> bool {
+        self.normal == Vec3::ZERO && self.offset == f32::INFINITY
+    }
+
+    fn is_valid(&self) -> bool {
+        self.is_inactive()
+            || (self.normal.is_finite() && self.normal != Vec3::ZERO && self.offset.is_finite())
+    }
+}
+
+/// A convex view volume: up to six half-spaces evaluated relative to an eye.
+///
+/// Planes are stored relative to the eye so that the test keeps its precision
+/// near the camera even when the camera is a million metres from the origin.
+///
+/// ```
+/// use bevy_rtree::{Aabb, Frustum};
+/// use glam::{Quat, Vec3};
+///
+/// // Looking down -z from the origin, like a default Bevy camera.
+/// let frustum = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 60f32.to_radians(), 16.0 / 9.0, 0.1, 100.0)?;
+/// let ahead = Aabb::new(Vec3::new(-1.0, -1.0, -11.0), Vec3::new(1.0, 1.0, -9.0))?;
+/// let behind = Aabb::new(Vec3::new(-1.0, -1.0, 9.0), Vec3::new(1.0, 1.0, 11.0))?;
+/// assert!(frustum.intersects_conservative(&ahead));
+/// assert!(!frustum.intersects_conservative(&behind));
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frustum {
+    eye: Vec3,
+    planes: [HalfSpace; 6],
+}
+
+impl Frustum {
+    /// A checked frustum from an eye and six eye-relative half-spaces (use
+    /// [`HalfSpace::INACTIVE`] for planes you do not need).
+    pub fn new(eye: Vec3, planes: [HalfSpace; 6]) -> Result<Frustum, SpatialError> {
+        if !eye.is_finite() || !planes.iter().all(HalfSpace::is_valid) {
+            return Err(SpatialError::InvalidFrustum);
+        }
+        Ok(Frustum { eye, planes })
+    }
+
+    /// A checked frustum from world-space planes `dot(n, p) + d > 0`, re-based
+    /// on `eye` (the offsets are converted in `f64`).
+    pub fn from_world_planes(eye: Vec3, planes: [(Vec3, f32); 6]) -> Result<Frustum, SpatialError> {
+        let rebased = planes.map(|(normal, d)| {
+            if normal == Vec3::ZERO && d == f32::INFINITY {
+                return HalfSpace::INACTIVE;
+            }
+            let offset = d as f64 + normal.as_dvec3().dot(eye.as_dvec3());
+            HalfSpace {
+                normal,
+                offset: offset as f32,
+            }
+        });
+        Frustum::new(eye, rebased)
+    }
+
+    /// A symmetric perspective frustum: camera at `eye`, oriented by
+    /// `rotation` (looking down its local -z, up along local +y, as in Bevy),
+    /// vertical field of view `fov_y` in radians, `aspect` = width / height,
+    /// `near` > 0 and `far` > `near` in metres (`far = inf` makes the far plane
+    /// inactive).
+    pub fn perspective(
+        eye: Vec3,
+        rotation: Quat,
+        fov_y: f32,
+        aspect: f32,
+        near: f32,
+        far: f32,
+    ) -> Result<Frustum, SpatialError> {
+        let fov_ok = fov_y > 0.0 && fov_y < std::f32::consts::PI;
+        if !(fov_ok && aspect > 0.0 && aspect.is_finite() && near > 0.0 && far > near) {
+            return Err(SpatialError::InvalidFrustum);
+        }
+        let forward = rotation * Vec3::NEG_Z;
+        let up = rotation * Vec3::Y;
+        let right = rotation * Vec3::X;
+        let tan_y = (fov_y * 0.5).tan();
+        let tan_x = tan_y * aspect;
+        // Side planes pass through the eye, so their eye-relative offset is 0.
+        // Each inward normal is the forward axis tilted against the side axis.
+        let side = |axis: Vec3, tan: f32| HalfSpace {
+            normal: (forward * tan + axis).normalize(),
+            offset: 0.0,
+        };
+        let far_plane = if far.is_finite() {
+            HalfSpace {
+                normal: -forward,
+                offset: far,
+            }
+        } else {
+            HalfSpace::INACTIVE
+        };
+        Frustum::new(
+            eye,
+            [
+                side(right, tan_x),
+                side(-right, tan_x),
+                side(up, tan_y),
+                side(-up, tan_y),
+                HalfSpace {
+                    normal: forward,
+                    offset: -near,
+                },
+                far_plane,
+            ],
+        )
+    }
+
+    /// The eye the planes are relative to.
+    pub fn eye(&self) -> Vec3 {
+        self.eye
+    }
+
+    /// The six eye-relative half-spaces.
+    pub fn planes(&self) -> &[HalfSpace; 6] {
+        &self.planes
+    }
+
+    /// The conservative test (SEMANTICS S7, Bevy's convention): visible iff for
+    /// every plane `dot(n, p - eye) + offset > 0`, with `p` the box corner
+    /// furthest along `n`. A box touching a plane from outside is culled.
+    #[inline]
+    pub fn intersects_conservative(&self, aabb: &Aabb) -> bool {
+        super::predicates::frustum_conservative(self, aabb)
+    }
+}
+
+use super::Aabb;

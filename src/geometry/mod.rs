@@ -1,0 +1,13 @@
+//! Geometry: boxes, rays, frustums, the error type, and the predicates that
+//! define every answer of the index (SEMANTICS.md).
+
+mod aabb;
+mod error;
+mod frustum;
+pub(crate) mod predicates;
+mod ray;
+
+pub use aabb::{Aabb, MAX_COORD};
+pub use error::SpatialError;
+pub use frustum::{Frustum, HalfSpace};
+pub use ray::Ray;

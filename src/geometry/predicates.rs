@@ -1,0 +1,142 @@
+//! The predicates of SEMANTICS.md, one function each.
+//!
+//! The tree and the brute-force oracle both call these functions, so an answer
+//! can only differ from the oracle if the tree prunes something it should not.
+//! The tree's node tests apply the same formulas to node boxes; each formula is
+//! monotone under box containment, which is what makes pruning safe.
+
+use glam::Vec3;
+
+use super::{Aabb, Frustum, Ray};
+
+/// Closed-box overlap: the boxes share at least one point (S0).
+#[inline]
+pub(crate) fn boxes_overlap(a: &Aabb, b: &Aabb) -> bool {
+    a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
+}
+
+/// A ray prepared for repeated box tests: the canonical ray plus `1 / dir`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RayTest {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+    pub inv: [f32; 3],
+    pub max_t: f32,
+}
+
+impl RayTest {
+    /// `ray` must be canonical ([`Ray::canonicalized`]).
+    #[inline]
+    pub fn new(ray: &Ray) -> RayTest {
+        let dir = ray.dir.to_array();
+        RayTest {
+            origin: ray.origin.to_array(),
+            dir,
+            inv: dir.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d }),
+            max_t: ray.max_t,
+        }
+    }
+}
+
+/// The ray / box predicate of S4, with `max_t` replaced by `limit` (the
+/// caller's current best, or `ray.max_t`). Returns the entry `t` on a hit.
+///
+/// The comparisons are written out on purpose: `f32::min`/`max` treat NaN
+/// differently on different targets, which would turn grazing rays into misses.
+#[inline]
+pub(crate) fn ray_box_entry(
+    ray: &RayTest,
+    limit: f32,
+    min: [f32; 3],
+    max: [f32; 3],
+) -> Option<f32> {
+    let mut lo = 0.0f32;
+    let mut hi = limit;
+    for i in 0..3 {
+        let o = ray.origin[i];
+        if ray.dir[i] == 0.0 {
+            if o < min[i] || o > max[i] {
+                return None;
+            }
+            continue;
+        }
+        let inv = ray.inv[i];
+        let (near, far) = if inv > 0.0 {
+            (min[i], max[i])
+        } else {
+            (max[i], min[i])
+        };
+        let t0 = (near - o) * inv;
+        let t1 = (far - o) * inv;
+        if t0 > lo {
+            lo = t0;
+        }
+        if t1 < hi {
+            hi = t1;
+        }
+    }
+    if lo <= hi { Some(lo) } else { None }
+}
+
+/// The conservative frustum test of S7 on one box.
+#[inline]
+pub(crate) fn frustum_conservative(frustum: &Frustum, aabb: &Aabb) -> bool {
+    let eye = frustum.eye();
+    let rel_min = aabb.min - eye;
+    let rel_max = aabb.max - eye;
+    frustum.planes().iter().all(|plane| {
+        if plane.is_inactive() {
+            return true;
+        }
+        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), rel_max, rel_min);
+        plane.normal.dot(p) + plane.offset > 0.0
+    })
+}
+
+/// Squared Euclidean distance between two closed boxes, in `f64` (S8).
+#[inline]
+pub(crate) fn box_distance_sq(a: &Aabb, b: &Aabb) -> f64 {
+    let mut sum = 0.0f64;
+    for i in 0..3 {
+        let g = axis_gap(a, b, i);
+        sum += g * g;
+    }
+    sum
+}
+
+/// The gap between two boxes along one axis (0 when their ranges overlap).
+#[inline]
+pub(crate) fn axis_gap(a: &Aabb, b: &Aabb, axis: usize) -> f64 {
+    let g1 = a.min[axis] as f64 - b.max[axis] as f64;
+    let g2 = b.min[axis] as f64 - a.max[axis] as f64;
+    let mut g = 0.0;
+    if g1 > g {
+        g = g1;
+    }
+    if g2 > g {
+        g = g2;
+    }
+    g
+}
+
+/// The join predicate in exact mode: Euclidean box distance `<= d` (S8).
+#[inline]
+pub(crate) fn within_euclidean(a: &Aabb, b: &Aabb, distance: f64) -> bool {
+    box_distance_sq(a, b) <= distance * distance
+}
+
+/// The join predicate in fast mode: every axis gap `<= d` (Chebyshev, S8).
+/// A superset of [`within_euclidean`].
+#[inline]
+pub(crate) fn within_chebyshev(a: &Aabb, b: &Aabb, distance: f64) -> bool {
+    (0..3).all(|i| axis_gap(a, b, i) <= distance)
+}
+
+/// Checks a join or radius distance: finite and `>= 0` (S8).
+pub(crate) fn check_distance(distance: f32) -> Result<f64, super::SpatialError> {
+    if distance.is_finite() && distance >= 0.0 {
+        Ok(distance as f64)
+    } else {
+        Err(super::SpatialError::InvalidDistance)
+    }
+}

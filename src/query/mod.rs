@@ -1,0 +1,13 @@
+//! Traversals over the tree, one file per query family, and the brute-force
+//! oracle every answer is checked against.
+//!
+//! Each family has one visitor-style core (`visit_*`) that reports entries to
+//! a closure able to stop the traversal, plus a few conveniences built on it.
+//! Traversal state lives in a reusable [`QueryWorkspace`], so queries run
+//! every frame do not allocate.
+
+pub mod oracle;
+mod overlap;
+mod workspace;
+
+pub use workspace::QueryWorkspace;

@@ -1,0 +1,81 @@
+//! The brute-force oracle: a plain list of `(key, box)` and, per query
+//! family, a loop that applies the very predicate the tree uses.
+//!
+//! Tests compare every tree answer with it; benchmarks time it as the
+//! baseline. It is slow on purpose and obviously right.
+
+use glam::Vec3;
+
+use crate::geometry::Aabb;
+use crate::geometry::predicates;
+
+/// A flat list of entries answering every query by testing all of them.
+///
+/// ```
+/// use bevy_rtree::oracle::BruteForce;
+/// use bevy_rtree::Aabb;
+/// use glam::Vec3;
+///
+/// let mut all = BruteForce::default();
+/// all.insert(3u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?);
+/// assert_eq!(all.overlapping(&Aabb::new(Vec3::ONE, Vec3::splat(2.0))?), [3]);
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct BruteForce<K> {
+    entries: Vec<(K, Aabb)>,
+}
+
+impl<K: Copy + Ord> BruteForce<K> {
+    /// Adds an entry (no checks: the oracle mirrors what the tree accepted).
+    pub fn insert(&mut self, key: K, aabb: Aabb) {
+        self.entries.push((key, aabb));
+    }
+
+    /// Replaces the box of every entry with this key.
+    pub fn update(&mut self, key: K, aabb: Aabb) {
+        for entry in self.entries.iter_mut().filter(|(k, _)| *k == key) {
+            entry.1 = aabb;
+        }
+    }
+
+    /// Removes every entry with this key.
+    pub fn remove(&mut self, key: K) {
+        self.entries.retain(|(k, _)| *k != key);
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether there are no entries.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// The entries.
+    pub fn entries(&self) -> &[(K, Aabb)] {
+        &self.entries
+    }
+
+    /// Sorted keys of entries whose closed box overlaps `query`.
+    pub fn overlapping(&self, query: &Aabb) -> Vec<K> {
+        let mut out: Vec<K> = self
+            .entries
+            .iter()
+            .filter(|(_, aabb)| predicates::boxes_overlap(aabb, query))
+            .map(|(key, _)| *key)
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
+    /// Sorted keys of entries whose closed box contains `point`.
+    pub fn containing_point(&self, point: Vec3) -> Vec<K> {
+        self.overlapping(&Aabb {
+            min: point,
+            max: point,
+        })
+    }
+}

@@ -1,0 +1,81 @@
+//! Overlap queries: every entry whose closed exact box shares a point with a
+//! query box (or contains a query point).
+
+use std::ops::ControlFlow;
+
+use glam::Vec3;
+
+use super::QueryWorkspace;
+use crate::geometry::Aabb;
+use crate::tree::RTree;
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Calls `visit(key, exact_box)` for every entry whose box overlaps
+    /// `query` (closed boxes: touching counts), in no particular order, until
+    /// `visit` breaks. An invalid query box matches nothing: every comparison
+    /// with NaN is false and an inverted box overlaps nothing.
+    pub fn visit_overlapping<F>(&self, query: &Aabb, ws: &mut QueryWorkspace, mut visit: F)
+    where
+        F: FnMut(K, &Aabb) -> ControlFlow<()>,
+    {
+        ws.stack.clear();
+        ws.stack.push(self.root());
+        while let Some(index) = ws.stack.pop() {
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            let mut mask = node.overlap_mask(query);
+            if node.is_leaf() {
+                ws.stats.entries_tested += node.len() as u64;
+                while mask != 0 {
+                    let lane = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    let key = self.key_of(node.child[lane]);
+                    if visit(key, &node.lane_box(lane)).is_break() {
+                        return;
+                    }
+                }
+            } else {
+                while mask != 0 {
+                    let lane = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    ws.stack.push(node.child[lane]);
+                }
+            }
+        }
+    }
+
+    /// Appends the keys of all entries overlapping `query` to `out`
+    /// (unordered; sort if you need an order).
+    pub fn overlapping_into(&self, query: &Aabb, ws: &mut QueryWorkspace, out: &mut Vec<K>) {
+        self.visit_overlapping(query, ws, |key, _| {
+            out.push(key);
+            ControlFlow::Continue(())
+        });
+    }
+
+    /// The keys of all entries overlapping `query`, sorted.
+    pub fn overlapping(&self, query: &Aabb) -> Vec<K> {
+        let mut out = Vec::new();
+        self.overlapping_into(query, &mut QueryWorkspace::default(), &mut out);
+        out.sort_unstable();
+        out
+    }
+
+    /// Whether any entry overlaps `query`; stops at the first.
+    pub fn any_overlapping(&self, query: &Aabb, ws: &mut QueryWorkspace) -> bool {
+        let mut found = false;
+        self.visit_overlapping(query, ws, |_, _| {
+            found = true;
+            ControlFlow::Break(())
+        });
+        found
+    }
+
+    /// The keys of all entries whose closed box contains `point`, sorted.
+    pub fn containing_point(&self, point: Vec3) -> Vec<K> {
+        self.overlapping(&Aabb {
+            min: point,
+            max: point,
+        })
+    }
+}

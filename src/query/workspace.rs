@@ -1,0 +1,44 @@
+//! Reusable traversal state.
+
+use crate::tree::QueryStats;
+
+/// Scratch memory and counters for queries.
+///
+/// Keep one per system or thread and pass it to every query: its buffers grow
+/// to the largest query seen and are then reused, and its [`QueryStats`]
+/// accumulate the work done until [`QueryWorkspace::take_stats`].
+///
+/// ```
+/// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
+/// use glam::Vec3;
+///
+/// let mut tree = RTree::new();
+/// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
+/// let mut ws = QueryWorkspace::default();
+/// let mut hits = Vec::new();
+/// tree.visit_overlapping(&Aabb::new(Vec3::ZERO, Vec3::ONE)?, &mut ws, |key, _| {
+///     hits.push(key);
+///     std::ops::ControlFlow::Continue(())
+/// });
+/// assert_eq!(hits, [1]);
+/// assert_eq!(ws.take_stats().nodes_visited, 1);
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct QueryWorkspace {
+    /// Depth-first traversal stack of node indices; grows, never drops work.
+    pub(crate) stack: Vec<u32>,
+    pub(crate) stats: QueryStats,
+}
+
+impl QueryWorkspace {
+    /// The counters accumulated so far.
+    pub fn stats(&self) -> QueryStats {
+        self.stats
+    }
+
+    /// Returns the counters and resets them to zero.
+    pub fn take_stats(&mut self) -> QueryStats {
+        std::mem::take(&mut self.stats)
+    }
+}

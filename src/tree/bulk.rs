@@ -1,0 +1,183 @@
+//! Sort-tile-recursive (STR) loading: entries are tiled into slabs along x,
+//! then y, then z, and packed bottom-up into nearly full nodes.
+
+use super::node::NIL;
+use super::{Entry, RTree};
+use crate::geometry::{Aabb, SpatialError};
+use crate::tree::ProxyId;
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Inserts many entries at once and rebuilds the whole tree with STR.
+    ///
+    /// Much faster than inserting one by one and gives a better tree; existing
+    /// handles stay valid. All boxes are checked first: if any is invalid,
+    /// nothing is inserted and the error is returned.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// let ids = tree.insert_bulk((0..1000u32).map(|i| {
+    ///     let p = Vec3::new(i as f32, 0.0, 0.0);
+    ///     (i, Aabb::new(p, p + Vec3::ONE).unwrap())
+    /// }))?;
+    /// assert_eq!(ids.len(), 1000);
+    /// assert_eq!(tree.len(), 1000);
+    /// tree.validate().unwrap();
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn insert_bulk(
+        &mut self,
+        entries: impl IntoIterator<Item = (K, Aabb)>,
+    ) -> Result<Vec<ProxyId>, SpatialError> {
+        let entries: Vec<(K, Aabb)> = entries.into_iter().collect();
+        if let Some(bad) = entries.iter().find(|(_, aabb)| !aabb.is_valid()) {
+            bad.1.validate()?;
+        }
+        let mut ids = Vec::with_capacity(entries.len());
+        let mut exact: Vec<Aabb> = self.collect_exact_boxes();
+        for (key, aabb) in entries {
+            let fat = self.settings.fatten(&aabb, glam::Vec3::ZERO);
+            let proxy = self.alloc_proxy(key, fat);
+            if exact.len() <= proxy as usize {
+                exact.resize(proxy as usize + 1, Aabb::INVERTED);
+            }
+            exact[proxy as usize] = aabb;
+            // Mark live now so the rebuild below picks it up.
+            self.proxies[proxy as usize].leaf = 0;
+            ids.push(self.handle(proxy));
+            self.len += 1;
+        }
+        self.rebuild_from(&exact);
+        Ok(ids)
+    }
+
+    /// Rebuilds the whole tree with STR from the entries' current boxes.
+    /// Handles stay valid; answers do not change.
+    pub fn rebuild(&mut self) {
+        let exact = self.collect_exact_boxes();
+        self.rebuild_from(&exact);
+    }
+
+    /// Exact box per proxy index (inverted for free slots).
+    fn collect_exact_boxes(&self) -> Vec<Aabb> {
+        self.proxies
+            .iter()
+            .map(|p| {
+                if p.is_live() {
+                    self.nodes[p.leaf as usize].lane_box(p.lane as usize)
+                } else {
+                    Aabb::INVERTED
+                }
+            })
+            .collect()
+    }
+
+    /// Packs every live proxy (exact boxes from `exact`) into a new tree.
+    fn rebuild_from(&mut self, exact: &[Aabb]) {
+        let mut level_entries: Vec<Entry> = self
+            .proxies
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.is_live())
+            .map(|(i, p)| Entry {
+                lane_box: exact[i],
+                bound: p.fat,
+                child: i as u32,
+            })
+            .collect();
+        self.nodes.clear();
+        self.free_nodes.clear();
+        self.dirty.clear();
+        let mut level = 0u16;
+        loop {
+            if level_entries.len() <= W {
+                let root = self.alloc_node(level, NIL);
+                self.fill_node(root, &level_entries);
+                self.root = root;
+                return;
+            }
+            let groups = level_entries.len().div_ceil(W);
+            str_partition(&mut level_entries, groups);
+            let mut next = Vec::with_capacity(groups);
+            for group in 0..groups {
+                let range = group_range(level_entries.len(), groups, group);
+                let node = self.alloc_node(level, NIL);
+                self.fill_node(node, &level_entries[range]);
+                next.push(self.node_entry(node));
+            }
+            level_entries = next;
+            level += 1;
+        }
+    }
+
+    /// Reserves room for `additional` more entries and their nodes.
+    pub fn reserve(&mut self, additional: usize) {
+        self.proxies.reserve(additional);
+        self.nodes.reserve(additional * 2 / W + 1);
+    }
+}
+
+/// The entries of group `g` when `n` entries are split into `groups` groups
+/// as evenly as possible (sizes differ by at most one).
+pub(super) fn group_range(n: usize, groups: usize, g: usize) -> std::ops::Range<usize> {
+    (n * g / groups)..(n * (g + 1) / groups)
+}
+
+/// Orders `entries` so that `group_range(len, groups, g)` is a spatially
+/// compact tile for every `g`: sort by x into about `groups^(1/3)` slabs, each
+/// slab by y into columns, each column by z.
+pub(super) fn str_partition(entries: &mut [Entry], groups: usize) {
+    let n = entries.len();
+    tile(entries, 0, groups, n, groups, 0);
+}
+
+/// Tiles the groups `first..first + count` (of `total_groups` over
+/// `total_entries`), whose entries are exactly `entries`, along `axis`.
+fn tile(
+    entries: &mut [Entry],
+    first: usize,
+    count: usize,
+    total_entries: usize,
+    total_groups: usize,
+    axis: usize,
+) {
+    if count <= 1 {
+        return;
+    }
+    let start = group_range(total_entries, total_groups, first).start;
+    entries
+        .sort_unstable_by(|a, b| centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis)));
+    if axis == 2 {
+        return;
+    }
+    let slabs = if axis == 0 {
+        (count as f64).cbrt().ceil() as usize
+    } else {
+        (count as f64).sqrt().ceil() as usize
+    };
+    for slab in 0..slabs {
+        let g0 = first + count * slab / slabs;
+        let g1 = first + count * (slab + 1) / slabs;
+        if g0 == g1 {
+            continue;
+        }
+        let lo = group_range(total_entries, total_groups, g0).start - start;
+        let hi = group_range(total_entries, total_groups, g1 - 1).end - start;
+        tile(
+            &mut entries[lo..hi],
+            g0,
+            g1 - g0,
+            total_entries,
+            total_groups,
+            axis + 1,
+        );
+    }
+}
+
+/// Twice the centre along `axis` (halving would not change the order).
+#[inline]
+fn centre_key(aabb: &Aabb, axis: usize) -> f32 {
+    aabb.min[axis] + aabb.max[axis]
+}

@@ -1,0 +1,316 @@
+//! The wide, dynamic R-tree.
+//!
+//! One operation per file, all as `impl RTree` blocks:
+//! - [`node`]: the structure-of-arrays node and its lane tests;
+//! - [`handle`]: stable [`ProxyId`] handles and the per-entry record;
+//! - `insert`, `split`: choose-subtree and R*-style splits;
+//! - `remove`: removal with condensing and reinsertion of orphans;
+//! - `update`: moves, absorbed by enlarged bounds when small;
+//! - `bulk`: sort-tile-recursive loading and rebuilds;
+//! - `optimize`: local repacking of churned subtrees;
+//! - `validate`: the invariant checker of SEMANTICS S10.
+
+mod bulk;
+mod handle;
+mod insert;
+pub(crate) mod node;
+mod optimize;
+mod remove;
+mod settings;
+mod split;
+mod stats;
+mod update;
+mod validate;
+
+pub use handle::ProxyId;
+pub use settings::TreeSettings;
+pub use stats::{MaintenanceStats, QueryStats};
+pub use update::MoveKind;
+pub use validate::InvariantViolation;
+
+use crate::geometry::{Aabb, SpatialError};
+use handle::Proxy;
+use node::{FREE_LEVEL, NIL, Node};
+
+/// The smallest node width the tree supports.
+const MIN_WIDTH: usize = 4;
+/// The largest node width the tree supports (split scratch is sized for it).
+const MAX_WIDTH: usize = 16;
+
+/// A wide, dynamic R-tree over `(key, box)` entries.
+///
+/// `K` is the caller's key (an ECS entity, an index, ...): answers report it
+/// and break ties by it. `W` is the node width, 4, 8 (the default) or 16;
+/// see the crate docs for the measurements behind the default.
+///
+/// Each entry keeps its exact box, used by every answer, and an enlarged box
+/// used only by the tree's structure, so that small moves cost O(1)
+/// (see [`TreeSettings`]).
+///
+/// ```
+/// use bevy_rtree::{Aabb, RTree};
+/// use glam::Vec3;
+///
+/// let mut tree = RTree::new();
+/// let crate_box = tree.insert("crate", Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
+/// tree.insert("lamp", Aabb::new(Vec3::splat(5.0), Vec3::splat(6.0))?)?;
+///
+/// let mut found = tree.overlapping(&Aabb::new(Vec3::splat(0.5), Vec3::splat(2.0))?);
+/// assert_eq!(found, vec!["crate"]);
+///
+/// tree.update(crate_box, Aabb::new(Vec3::splat(10.0), Vec3::splat(11.0))?)?;
+/// found = tree.overlapping(&Aabb::new(Vec3::splat(0.5), Vec3::splat(2.0))?);
+/// assert!(found.is_empty());
+/// tree.validate().expect("invariants hold");
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct RTree<K, const W: usize = 8> {
+    /// The node pool; freed nodes are recycled through `free_nodes`.
+    nodes: Vec<Node<W>>,
+    free_nodes: Vec<u32>,
+    root: u32,
+    /// The entry records, indexed by `ProxyId::index`.
+    proxies: Vec<Proxy<K>>,
+    free_proxies: Vec<u32>,
+    len: usize,
+    settings: TreeSettings,
+    /// Level-1 nodes whose churn crossed the threshold, for `optimize`.
+    dirty: Vec<u32>,
+    maintenance: MaintenanceStats,
+}
+
+impl<K: Copy + Ord> Default for RTree<K, 8> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<K: Copy + Ord> RTree<K, 8> {
+    /// An empty tree of width 8 with default settings.
+    pub fn new() -> Self {
+        Self::with_settings(TreeSettings::default()).expect("default settings are valid")
+    }
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Minimum fill of every node but the root: 40 % of `W`, as in the R*-tree.
+    pub(crate) const MIN_FILL: usize = if W * 2 / 5 < 2 { 2 } else { W * 2 / 5 };
+
+    const WIDTH_OK: () = assert!(W >= MIN_WIDTH && W <= MAX_WIDTH && W <= 32);
+
+    /// An empty tree with the given settings (of any supported width `W`).
+    pub fn with_settings(settings: TreeSettings) -> Result<Self, SpatialError> {
+        let () = Self::WIDTH_OK;
+        settings.validate()?;
+        Ok(RTree {
+            nodes: vec![Node::empty(0, NIL)],
+            free_nodes: Vec::new(),
+            root: 0,
+            proxies: Vec::new(),
+            free_proxies: Vec::new(),
+            len: 0,
+            settings,
+            dirty: Vec::new(),
+            maintenance: MaintenanceStats::default(),
+        })
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the tree has no entries.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The settings the tree was built with.
+    pub fn settings(&self) -> &TreeSettings {
+        &self.settings
+    }
+
+    /// Levels from the root to the leaves (1 for a tree that is one leaf).
+    pub fn height(&self) -> usize {
+        self.nodes[self.root as usize].level as usize + 1
+    }
+
+    /// Live nodes in the pool.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len() - self.free_nodes.len()
+    }
+
+    /// The key and exact box of a live entry.
+    pub fn get(&self, id: ProxyId) -> Result<(K, Aabb), SpatialError> {
+        let index = self.check(id)?;
+        let proxy = &self.proxies[index as usize];
+        let aabb = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
+        Ok((proxy.key, aabb))
+    }
+
+    /// The enlarged box the structure uses for a live entry (for diagnostics;
+    /// answers never depend on it).
+    pub fn enlarged_box(&self, id: ProxyId) -> Result<Aabb, SpatialError> {
+        let index = self.check(id)?;
+        Ok(self.proxies[index as usize].fat)
+    }
+
+    /// Whether `id` names a live entry.
+    pub fn contains(&self, id: ProxyId) -> bool {
+        self.check(id).is_ok()
+    }
+
+    /// Every live entry as `(id, key, exact box)`, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = (ProxyId, K, Aabb)> + '_ {
+        self.proxies
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.is_live())
+            .map(|(i, p)| {
+                let id = ProxyId {
+                    index: i as u32,
+                    generation: p.generation,
+                };
+                (
+                    id,
+                    p.key,
+                    self.nodes[p.leaf as usize].lane_box(p.lane as usize),
+                )
+            })
+    }
+
+    /// Removes every entry; handles issued before are refused afterwards.
+    pub fn clear(&mut self) {
+        for proxy in &mut self.proxies {
+            if proxy.is_live() {
+                proxy.leaf = NIL;
+                proxy.generation = proxy.generation.wrapping_add(1);
+            }
+        }
+        self.free_proxies = (0..self.proxies.len() as u32).rev().collect();
+        self.nodes.clear();
+        self.nodes.push(Node::empty(0, NIL));
+        self.free_nodes.clear();
+        self.dirty.clear();
+        self.root = 0;
+        self.len = 0;
+    }
+
+    /// Counters of the work mutations did since the last call.
+    pub fn take_maintenance_stats(&mut self) -> MaintenanceStats {
+        std::mem::take(&mut self.maintenance)
+    }
+
+    /// The proxy index of a live handle, or `UnknownProxy`.
+    #[inline]
+    fn check(&self, id: ProxyId) -> Result<u32, SpatialError> {
+        match self.proxies.get(id.index as usize) {
+            Some(p) if p.is_live() && p.generation == id.generation => Ok(id.index),
+            _ => Err(SpatialError::UnknownProxy),
+        }
+    }
+
+    /// The root node's index (for traversals).
+    #[inline]
+    pub(crate) fn root(&self) -> u32 {
+        self.root
+    }
+
+    #[inline]
+    pub(crate) fn node(&self, index: u32) -> &Node<W> {
+        &self.nodes[index as usize]
+    }
+
+    #[inline]
+    pub(crate) fn key_of(&self, proxy: u32) -> K {
+        self.proxies[proxy as usize].key
+    }
+
+    fn alloc_node(&mut self, level: u16, parent: u32) -> u32 {
+        match self.free_nodes.pop() {
+            Some(index) => {
+                self.nodes[index as usize] = Node::empty(level, parent);
+                index
+            }
+            None => {
+                self.nodes.push(Node::empty(level, parent));
+                (self.nodes.len() - 1) as u32
+            }
+        }
+    }
+
+    fn free_node(&mut self, index: u32) {
+        let node = &mut self.nodes[index as usize];
+        *node = Node::empty(FREE_LEVEL, NIL);
+        self.free_nodes.push(index);
+    }
+
+    fn alloc_proxy(&mut self, key: K, fat: Aabb) -> u32 {
+        match self.free_proxies.pop() {
+            Some(index) => {
+                let proxy = &mut self.proxies[index as usize];
+                proxy.key = key;
+                proxy.fat = fat;
+                index
+            }
+            None => {
+                self.proxies.push(Proxy {
+                    fat,
+                    leaf: NIL,
+                    lane: 0,
+                    generation: 0,
+                    key,
+                });
+                (self.proxies.len() - 1) as u32
+            }
+        }
+    }
+
+    fn handle(&self, proxy: u32) -> ProxyId {
+        ProxyId {
+            index: proxy,
+            generation: self.proxies[proxy as usize].generation,
+        }
+    }
+
+    /// The bound a node presents to its parent: for a leaf, the union of its
+    /// entries' enlarged boxes; for an internal node, the union of its lanes.
+    fn node_bound(&self, index: u32) -> Aabb {
+        let node = &self.nodes[index as usize];
+        if node.is_leaf() {
+            node.child[..node.len()]
+                .iter()
+                .fold(Aabb::INVERTED, |acc, &p| {
+                    acc.union(&self.proxies[p as usize].fat)
+                })
+        } else {
+            node.lanes_union()
+        }
+    }
+
+    /// Points the child in `lane` of `node` back at `node`.
+    #[inline]
+    fn link(&mut self, node: u32, lane: usize) {
+        let n = &self.nodes[node as usize];
+        let child = n.child[lane];
+        if n.is_leaf() {
+            let proxy = &mut self.proxies[child as usize];
+            proxy.leaf = node;
+            proxy.lane = lane as u32;
+        } else {
+            self.nodes[child as usize].parent = node;
+        }
+    }
+}
+
+/// One child on its way into a node: a proxy (into a leaf) or a node.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    /// What the lane will store: the exact box for a proxy, the bound for a node.
+    lane_box: Aabb,
+    /// What the structure uses: the enlarged box for a proxy, the bound for a node.
+    bound: Aabb,
+    /// Proxy or node index.
+    child: u32,
+}

@@ -1,0 +1,127 @@
+//! The wide node: child bounds as a structure of arrays in one fixed-size,
+//! cache-line-aligned block.
+
+use crate::geometry::Aabb;
+
+/// "No node" / "no proxy" sentinel for indices.
+pub(crate) const NIL: u32 = u32::MAX;
+
+/// The `level` of a node that sits on the free list.
+pub(crate) const FREE_LEVEL: u16 = u16::MAX;
+
+/// One node of the tree, `W` children wide.
+///
+/// Child bounds are stored per axis (`min[axis][lane]`), so one query tests
+/// all `W` lanes with the same instructions and no branch per lane. Unused
+/// lanes hold the inverted box (`+inf` / `-inf`), which every predicate
+/// rejects, so lane loops never look at `len`.
+///
+/// In a leaf (`level == 0`) the lanes hold the entries' *exact* boxes and
+/// `child` holds proxy indices; every answer is decided there. In an internal
+/// node the lanes hold each child node's bound and `child` holds node indices.
+#[derive(Clone, Debug)]
+#[repr(C, align(64))]
+pub(crate) struct Node<const W: usize> {
+    /// Lower corners per axis: `min[axis][lane]`. 12·W bytes.
+    pub min: [[f32; W]; 3],
+    /// Upper corners per axis: `max[axis][lane]`. 12·W bytes.
+    pub max: [[f32; W]; 3],
+    /// Child node index (internal) or proxy index (leaf) per lane. 4·W bytes.
+    pub child: [u32; W],
+    /// Parent node index, `NIL` at the root. 4 bytes.
+    pub parent: u32,
+    /// Moves that restructured this node's subtree since it was last
+    /// repacked; drives [`RTree::optimize`](super::RTree::optimize). 4 bytes.
+    pub churn: u32,
+    /// Number of used lanes (`0..=W`); used lanes come first. 2 bytes.
+    pub len: u16,
+    /// Height above the leaves (0 = leaf), or `FREE_LEVEL`. 2 bytes.
+    pub level: u16,
+}
+
+// The node is exactly 32·W bytes (W = 8: four cache lines), so nodes never
+// straddle more lines than they must.
+const _: () = assert!(std::mem::size_of::<Node<4>>() == 128);
+const _: () = assert!(std::mem::size_of::<Node<8>>() == 256);
+const _: () = assert!(std::mem::size_of::<Node<16>>() == 512);
+
+impl<const W: usize> Node<W> {
+    /// An empty node at `level`.
+    pub fn empty(level: u16, parent: u32) -> Self {
+        Node {
+            min: [[f32::INFINITY; W]; 3],
+            max: [[f32::NEG_INFINITY; W]; 3],
+            child: [NIL; W],
+            parent,
+            churn: 0,
+            len: 0,
+            level,
+        }
+    }
+
+    #[inline]
+    pub fn is_leaf(&self) -> bool {
+        self.level == 0
+    }
+
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.len as usize
+    }
+
+    /// The box stored in `lane`.
+    #[inline]
+    pub fn lane_box(&self, lane: usize) -> Aabb {
+        Aabb {
+            min: glam::Vec3::new(self.min[0][lane], self.min[1][lane], self.min[2][lane]),
+            max: glam::Vec3::new(self.max[0][lane], self.max[1][lane], self.max[2][lane]),
+        }
+    }
+
+    /// Writes the box of `lane`.
+    #[inline]
+    pub fn set_lane_box(&mut self, lane: usize, aabb: &Aabb) {
+        for axis in 0..3 {
+            self.min[axis][lane] = aabb.min[axis];
+            self.max[axis][lane] = aabb.max[axis];
+        }
+    }
+
+    /// Marks `lane` unused (inverted box, `NIL` child).
+    #[inline]
+    pub fn clear_lane(&mut self, lane: usize) {
+        self.set_lane_box(lane, &Aabb::INVERTED);
+        self.child[lane] = NIL;
+    }
+
+    /// The union of the used lanes' boxes.
+    pub fn lanes_union(&self) -> Aabb {
+        (0..self.len()).fold(Aabb::INVERTED, |acc, lane| acc.union(&self.lane_box(lane)))
+    }
+
+    /// The lane holding `child`, if any.
+    #[inline]
+    pub fn lane_of(&self, child: u32) -> Option<usize> {
+        self.child[..self.len()].iter().position(|&c| c == child)
+    }
+
+    /// Bit `i` set iff lane `i`'s box overlaps `query` (closed boxes).
+    ///
+    /// Written as plain per-lane comparisons over the arrays so the compiler
+    /// can vectorise it; the result is the same as calling the scalar
+    /// predicate per lane, because it is the same comparisons.
+    #[inline]
+    pub fn overlap_mask(&self, query: &Aabb) -> u32 {
+        let mut mask = 0u32;
+        for lane in 0..W {
+            let hit = (self.min[0][lane] <= query.max.x)
+                & (self.min[1][lane] <= query.max.y)
+                & (self.min[2][lane] <= query.max.z)
+                & (query.min.x <= self.max[0][lane])
+                & (query.min.y <= self.max[1][lane])
+                & (query.min.z <= self.max[2][lane]);
+            mask |= (hit as u32) << lane;
+        }
+        mask
+    }
+}

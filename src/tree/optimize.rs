@@ -1,0 +1,71 @@
+//! Repair of churn: a node whose subtree absorbed many reinsertions has its
+//! grandchildren re-tiled among its children (STR), which restores compact,
+//! low-overlap leaves without touching anything above the node.
+
+use smallvec::SmallVec;
+
+use super::RTree;
+use super::bulk::{group_range, str_partition};
+use super::node::FREE_LEVEL;
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Repacks up to `budget` churned nodes and returns how many it repacked.
+    ///
+    /// Call it once per frame after the frame's updates (the ECS plugin does).
+    /// Each repack re-tiles the entries under one level-1 node among its
+    /// leaves; its cost is bounded by `W * W` entries. Answers never change.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// let ids = tree.insert_bulk((0..500u32).map(|i| {
+    ///     let p = Vec3::new(i as f32, 0.0, 0.0);
+    ///     (i, Aabb::new(p, p + Vec3::ONE).unwrap())
+    /// }))?;
+    /// for (i, id) in ids.iter().enumerate() {
+    ///     let p = Vec3::new(((i * 7919) % 500) as f32, 0.0, 0.0);
+    ///     tree.update(*id, Aabb::new(p, p + Vec3::ONE)?)?;
+    /// }
+    /// tree.optimize(usize::MAX);
+    /// tree.validate().unwrap();
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn optimize(&mut self, budget: usize) -> usize {
+        let mut done = 0;
+        while done < budget {
+            let Some(node) = self.dirty.pop() else { break };
+            let n = &self.nodes[node as usize];
+            if n.level == FREE_LEVEL || n.level != 1 {
+                continue;
+            }
+            self.repack(node);
+            done += 1;
+        }
+        done
+    }
+
+    /// Re-tiles the grandchildren of `node` among its children.
+    fn repack(&mut self, node: u32) {
+        self.maintenance.repacks += 1;
+        self.nodes[node as usize].churn = 0;
+        let children: SmallVec<[u32; 16]> = {
+            let n = &self.nodes[node as usize];
+            n.child[..n.len()].iter().copied().collect()
+        };
+        let mut entries: Vec<_> = children
+            .iter()
+            .flat_map(|&child| self.node_entries(child))
+            .collect();
+        str_partition(&mut entries, children.len());
+        for (group, &child) in children.iter().enumerate() {
+            let range = group_range(entries.len(), children.len(), group);
+            self.fill_node(child, &entries[range]);
+        }
+        for (lane, &child) in children.iter().enumerate() {
+            let bound = self.node_bound(child);
+            self.nodes[node as usize].set_lane_box(lane, &bound);
+        }
+    }
+}

@@ -1,0 +1,36 @@
+//! Counters that make the cost of queries and maintenance visible without a
+//! profiler.
+
+/// Work done by queries: accumulated into a
+/// [`QueryWorkspace`](crate::QueryWorkspace) until reset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct QueryStats {
+    /// Nodes whose lanes were tested.
+    pub nodes_visited: u64,
+    /// Leaf lanes (entries) tested against the query's exact predicate.
+    pub entries_tested: u64,
+}
+
+/// Work done by mutations since the tree was created or
+/// [`RTree::take_maintenance_stats`](super::RTree::take_maintenance_stats)
+/// was last called.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MaintenanceStats {
+    /// Entries inserted one by one.
+    pub inserts: u64,
+    /// Entries removed.
+    pub removals: u64,
+    /// Moves that stayed inside the entry's enlarged box: one lane write.
+    pub moves_in_place: u64,
+    /// Moves that left the enlarged box but stayed inside the leaf's bound:
+    /// a new enlarged box and one lane write, no structural change.
+    pub moves_in_leaf: u64,
+    /// Moves that left the leaf's bound: the entry was reinserted.
+    pub moves_reinserted: u64,
+    /// Node splits.
+    pub splits: u64,
+    /// Nodes that underflowed and had their entries reinserted.
+    pub condensed_nodes: u64,
+    /// Nodes repacked by [`RTree::optimize`](super::RTree::optimize).
+    pub repacks: u64,
+}

@@ -1,0 +1,117 @@
+//! Moves: absorbed by the enlarged box when small, by the leaf's bound when
+//! moderate, and by a reinsertion otherwise.
+
+use super::node::NIL;
+use super::{Entry, RTree};
+use crate::geometry::{Aabb, SpatialError};
+use crate::tree::ProxyId;
+
+/// What a move cost, from cheapest to dearest.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MoveKind {
+    /// The new box is inside the entry's enlarged box: one lane write.
+    InPlace,
+    /// The entry got a new enlarged box that still fits its leaf's bound:
+    /// one lane write, no structural change.
+    InLeaf,
+    /// The entry left its leaf's bound and was reinserted from the root.
+    Reinserted,
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Moves an entry to a new exact box.
+    ///
+    /// Fails with [`SpatialError::InvalidBox`] or
+    /// [`SpatialError::UnknownProxy`] and changes nothing. The handle stays
+    /// the same whatever the move cost.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, MoveKind, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+    /// let id = tree.insert(1u8, unit)?;
+    /// let nudged = Aabb::new(Vec3::splat(0.01), Vec3::splat(1.01))?;
+    /// assert_eq!(tree.update(id, nudged)?, MoveKind::InPlace);
+    /// assert_eq!(tree.get(id)?.1, nudged); // answers use the exact box
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn update(&mut self, id: ProxyId, aabb: Aabb) -> Result<MoveKind, SpatialError> {
+        aabb.validate()?;
+        let proxy = self.check(id)?;
+        Ok(self.move_proxy(proxy, aabb))
+    }
+
+    fn move_proxy(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
+        let (leaf, lane, fat) = {
+            let p = &self.proxies[proxy as usize];
+            (p.leaf, p.lane as usize, p.fat)
+        };
+        if fat.contains(&aabb) {
+            self.nodes[leaf as usize].set_lane_box(lane, &aabb);
+            self.maintenance.moves_in_place += 1;
+            return MoveKind::InPlace;
+        }
+
+        let old = self.nodes[leaf as usize].lane_box(lane);
+        let displacement = (aabb.min - old.min + aabb.max - old.max) * 0.5;
+        let new_fat = self.settings.fatten(&aabb, displacement);
+        if self.leaf_bound_contains(leaf, &new_fat) {
+            self.proxies[proxy as usize].fat = new_fat;
+            self.nodes[leaf as usize].set_lane_box(lane, &aabb);
+            self.maintenance.moves_in_leaf += 1;
+            return MoveKind::InLeaf;
+        }
+
+        let old_parent = self.nodes[leaf as usize].parent;
+        self.detach(proxy);
+        self.proxies[proxy as usize].fat = new_fat;
+        let new_leaf = self.insert_entry(
+            Entry {
+                lane_box: aabb,
+                bound: new_fat,
+                child: proxy,
+            },
+            0,
+        );
+        self.note_churn(old_parent);
+        let new_parent = self.nodes[new_leaf as usize].parent;
+        if new_parent != old_parent {
+            self.note_churn(new_parent);
+        }
+        self.maintenance.moves_reinserted += 1;
+        MoveKind::Reinserted
+    }
+
+    /// Whether `fat` fits the bound the parent holds for `leaf` (the root
+    /// leaf has no bound to leave).
+    fn leaf_bound_contains(&self, leaf: u32, fat: &Aabb) -> bool {
+        let parent = self.nodes[leaf as usize].parent;
+        if parent == NIL {
+            return true;
+        }
+        let p = &self.nodes[parent as usize];
+        match p.lane_of(leaf) {
+            Some(lane) => p.lane_box(lane).contains(fat),
+            None => false,
+        }
+    }
+
+    /// Counts a restructuring move against a level-1 node and queues it for
+    /// repacking once it crosses the threshold.
+    fn note_churn(&mut self, node: u32) {
+        if node == NIL {
+            return;
+        }
+        let threshold = self.settings.repack_threshold;
+        let n = &mut self.nodes[node as usize];
+        if n.level != 1 {
+            return;
+        }
+        n.churn += 1;
+        if n.churn == threshold {
+            self.dirty.push(node);
+        }
+    }
+}

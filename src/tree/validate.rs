@@ -1,0 +1,161 @@
+//! The invariant checker (SEMANTICS S10).
+
+use std::fmt;
+
+use super::RTree;
+use super::node::{FREE_LEVEL, NIL};
+use crate::geometry::Aabb;
+
+/// A broken invariant found by [`RTree::validate`]; the text says which.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct InvariantViolation(pub String);
+
+impl fmt::Display for InvariantViolation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "R-tree invariant violated: {}", self.0)
+    }
+}
+
+impl std::error::Error for InvariantViolation {}
+
+macro_rules! ensure {
+    ($cond:expr, $($msg:tt)+) => {
+        if !$cond {
+            return Err(InvariantViolation(format!($($msg)+)));
+        }
+    };
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Checks every structural invariant; cheap enough to call after every
+    /// mutation in tests (linear in the tree's size).
+    ///
+    /// Checked: parent and child links agree, there are no cycles and every
+    /// node is reachable exactly once; every lane box contains its child's
+    /// bound (for a leaf entry: its enlarged box contains its exact box);
+    /// fan-out is within `[MIN_FILL, W]` except at the root, and an internal
+    /// root has at least two children; all leaves are at the same depth;
+    /// unused lanes are inverted; the number of leaf entries equals `len()`
+    /// and the number of live handles, and each handle points at the lane
+    /// that holds it; every stored exact box is valid; free nodes plus live
+    /// nodes make up the pool.
+    pub fn validate(&self) -> Result<(), InvariantViolation> {
+        let root = self.root;
+        ensure!(
+            (root as usize) < self.nodes.len(),
+            "root {root} out of the pool"
+        );
+        ensure!(self.nodes[root as usize].parent == NIL, "root has a parent");
+        let mut seen = vec![false; self.nodes.len()];
+        let mut stack = vec![root];
+        let mut entries = 0usize;
+        let mut live_nodes = 0usize;
+        while let Some(index) = stack.pop() {
+            ensure!(
+                !seen[index as usize],
+                "node {index} reached twice (cycle or shared child)"
+            );
+            seen[index as usize] = true;
+            live_nodes += 1;
+            let node = &self.nodes[index as usize];
+            ensure!(
+                node.level != FREE_LEVEL,
+                "free node {index} is linked into the tree"
+            );
+            let len = node.len();
+            ensure!(len <= W, "node {index} holds {len} > {W} lanes");
+            if index == root {
+                ensure!(
+                    node.is_leaf() || len >= 2,
+                    "internal root has {len} children"
+                );
+            } else {
+                ensure!(
+                    len >= Self::MIN_FILL,
+                    "node {index} underfull: {len} < {}",
+                    Self::MIN_FILL
+                );
+            }
+            for lane in len..W {
+                let unused = node.lane_box(lane) == Aabb::INVERTED && node.child[lane] == NIL;
+                ensure!(unused, "node {index} lane {lane} is unused but not cleared");
+            }
+            for lane in 0..len {
+                let child = node.child[lane];
+                let lane_box = node.lane_box(lane);
+                if node.is_leaf() {
+                    entries += 1;
+                    let proxy = self.proxies.get(child as usize);
+                    ensure!(proxy.is_some(), "leaf {index} names missing proxy {child}");
+                    let proxy = proxy.unwrap();
+                    ensure!(
+                        proxy.leaf == index && proxy.lane as usize == lane,
+                        "proxy {child} points at ({}, {}) but lives in ({index}, {lane})",
+                        proxy.leaf,
+                        proxy.lane
+                    );
+                    ensure!(
+                        lane_box.is_valid(),
+                        "proxy {child} has invalid box {lane_box:?}"
+                    );
+                    ensure!(
+                        proxy.fat.contains(&lane_box),
+                        "proxy {child}: enlarged box misses exact box"
+                    );
+                } else {
+                    ensure!(
+                        (child as usize) < self.nodes.len(),
+                        "node {index} names missing node {child}"
+                    );
+                    let c = &self.nodes[child as usize];
+                    ensure!(
+                        c.parent == index,
+                        "node {child} has parent {} but hangs under {index}",
+                        c.parent
+                    );
+                    ensure!(
+                        c.level != FREE_LEVEL && c.level + 1 == node.level,
+                        "node {child} at level {} under level {}",
+                        c.level,
+                        node.level
+                    );
+                    let bound = self.node_bound(child);
+                    ensure!(
+                        lane_box.contains(&bound),
+                        "node {index} lane {lane} does not contain child {child}"
+                    );
+                    stack.push(child);
+                }
+            }
+        }
+        ensure!(
+            entries == self.len,
+            "{entries} leaf entries but len() = {}",
+            self.len
+        );
+        let live_proxies = self.proxies.iter().filter(|p| p.is_live()).count();
+        ensure!(
+            live_proxies == self.len,
+            "{live_proxies} live handles but len() = {}",
+            self.len
+        );
+        ensure!(
+            live_proxies + self.free_proxies.len() == self.proxies.len(),
+            "proxy free list and live proxies do not add up"
+        );
+        for &free in &self.free_nodes {
+            ensure!(!seen[free as usize], "free node {free} is reachable");
+            ensure!(
+                self.nodes[free as usize].level == FREE_LEVEL,
+                "free node {free} is not marked free"
+            );
+        }
+        ensure!(
+            live_nodes + self.free_nodes.len() == self.nodes.len(),
+            "{live_nodes} live + {} free nodes != pool of {}",
+            self.free_nodes.len(),
+            self.nodes.len()
+        );
+        Ok(())
+    }
+}

@@ -1,0 +1,206 @@
+//! The tree under random operation sequences, checked after every step
+//! against the brute-force oracle and `validate()`.
+
+mod common;
+
+use std::collections::BTreeMap;
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, TreeSettings};
+use glam::Vec3;
+use proptest::prelude::*;
+
+#[derive(Clone, Debug)]
+enum Op {
+    Insert(Aabb),
+    /// Insert a box identical to an existing entry's box.
+    InsertIdentical(usize),
+    /// A small move: the entry's box shifted by a grid step.
+    Nudge(usize, Vec3),
+    /// Move to an arbitrary new box.
+    Update(usize, Aabb),
+    /// A teleport a million metres away.
+    Teleport(usize, Aabb),
+    Remove(usize),
+    /// Remove and reinsert in one frame.
+    RemoveReinsert(usize),
+    Bulk(Vec<Aabb>),
+    Optimize,
+    Rebuild,
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    let nudge = (-2i32..=2, -2i32..=2, -2i32..=2)
+        .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32) * 0.125);
+    prop_oneof![
+        6 => common::grid_box().prop_map(Op::Insert),
+        1 => any::<usize>().prop_map(Op::InsertIdentical),
+        5 => (any::<usize>(), nudge).prop_map(|(i, d)| Op::Nudge(i, d)),
+        2 => (any::<usize>(), common::grid_box()).prop_map(|(i, b)| Op::Update(i, b)),
+        1 => (any::<usize>(), common::grid_box())
+            .prop_map(|(i, b)| Op::Teleport(i, Aabb { min: b.min + 1e6, max: b.max + 1e6 })),
+        3 => any::<usize>().prop_map(Op::Remove),
+        1 => any::<usize>().prop_map(Op::RemoveReinsert),
+        1 => prop::collection::vec(common::grid_box(), 0..40).prop_map(Op::Bulk),
+        1 => Just(Op::Optimize),
+        1 => Just(Op::Rebuild),
+    ]
+}
+
+/// The tree, the oracle and the handle of each live key, kept in step.
+struct Model<const W: usize> {
+    tree: RTree<u32, W>,
+    oracle: BruteForce<u32>,
+    handles: BTreeMap<u32, ProxyId>,
+    next_key: u32,
+}
+
+impl<const W: usize> Model<W> {
+    fn new(settings: TreeSettings) -> Self {
+        Model {
+            tree: RTree::with_settings(settings).unwrap(),
+            oracle: BruteForce::default(),
+            handles: BTreeMap::new(),
+            next_key: 0,
+        }
+    }
+
+    fn pick(&self, i: usize) -> Option<(u32, ProxyId)> {
+        if self.handles.is_empty() {
+            return None;
+        }
+        self.handles
+            .iter()
+            .nth(i % self.handles.len())
+            .map(|(k, h)| (*k, *h))
+    }
+
+    fn insert(&mut self, aabb: Aabb) {
+        let key = self.next_key;
+        self.next_key += 1;
+        let id = self.tree.insert(key, aabb).unwrap();
+        self.oracle.insert(key, aabb);
+        self.handles.insert(key, id);
+    }
+
+    fn apply(&mut self, op: &Op) {
+        match op {
+            Op::Insert(aabb) => self.insert(*aabb),
+            Op::InsertIdentical(i) => {
+                if let Some((_, id)) = self.pick(*i) {
+                    let (_, aabb) = self.tree.get(id).unwrap();
+                    self.insert(aabb);
+                }
+            }
+            Op::Nudge(i, delta) => {
+                if let Some((key, id)) = self.pick(*i) {
+                    let (_, old) = self.tree.get(id).unwrap();
+                    let moved = Aabb {
+                        min: old.min + *delta,
+                        max: old.max + *delta,
+                    };
+                    self.tree.update(id, moved).unwrap();
+                    self.oracle.update(key, moved);
+                }
+            }
+            Op::Update(i, aabb) | Op::Teleport(i, aabb) => {
+                if let Some((key, id)) = self.pick(*i) {
+                    self.tree.update(id, *aabb).unwrap();
+                    self.oracle.update(key, *aabb);
+                }
+            }
+            Op::Remove(i) => {
+                if let Some((key, id)) = self.pick(*i) {
+                    assert_eq!(self.tree.remove(id), Ok(key));
+                    self.oracle.remove(key);
+                    self.handles.remove(&key);
+                    assert!(self.tree.get(id).is_err(), "a removed handle stays dead");
+                }
+            }
+            Op::RemoveReinsert(i) => {
+                if let Some((key, id)) = self.pick(*i) {
+                    let (_, aabb) = self.tree.get(id).unwrap();
+                    self.tree.remove(id).unwrap();
+                    let again = self.tree.insert(key, aabb).unwrap();
+                    assert_ne!(again, id, "a reused slot gets a new generation");
+                    self.handles.insert(key, again);
+                }
+            }
+            Op::Bulk(boxes) => {
+                let first = self.next_key;
+                let keys: Vec<u32> = (first..first + boxes.len() as u32).collect();
+                self.next_key += boxes.len() as u32;
+                let ids = self
+                    .tree
+                    .insert_bulk(keys.iter().copied().zip(boxes.iter().copied()))
+                    .unwrap();
+                for ((key, aabb), id) in keys.into_iter().zip(boxes).zip(ids) {
+                    self.oracle.insert(key, *aabb);
+                    self.handles.insert(key, id);
+                }
+            }
+            Op::Optimize => {
+                self.tree.optimize(usize::MAX);
+            }
+            Op::Rebuild => self.tree.rebuild(),
+        }
+    }
+
+    fn check(&self, query: &Aabb, point: Vec3) {
+        self.tree.validate().unwrap();
+        assert_eq!(self.tree.len(), self.oracle.len());
+        assert_eq!(self.tree.overlapping(query), self.oracle.overlapping(query));
+        assert_eq!(
+            self.tree.containing_point(point),
+            self.oracle.containing_point(point)
+        );
+        let mut ws = QueryWorkspace::default();
+        assert_eq!(
+            self.tree.any_overlapping(query, &mut ws),
+            !self.oracle.overlapping(query).is_empty()
+        );
+        for (key, id) in &self.handles {
+            assert_eq!(self.tree.get(*id).map(|(k, _)| k), Ok(*key));
+        }
+    }
+}
+
+fn run<const W: usize>(settings: TreeSettings, ops: &[(Op, Aabb, Vec3)]) {
+    let mut model = Model::<W>::new(settings);
+    for (op, query, point) in ops {
+        model.apply(op);
+        model.check(query, *point);
+    }
+}
+
+fn ops() -> impl Strategy<Value = Vec<(Op, Aabb, Vec3)>> {
+    prop::collection::vec((op(), common::grid_box(), common::grid_point()), 1..160)
+}
+
+/// Small repack threshold so `optimize` really repacks in short sequences.
+fn eager_settings() -> TreeSettings {
+    TreeSettings {
+        repack_threshold: 1,
+        ..TreeSettings::default()
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    #[test]
+    fn width_4_matches_oracle_after_every_operation(ops in ops()) {
+        run::<4>(eager_settings(), &ops);
+    }
+
+    #[test]
+    fn width_8_matches_oracle_after_every_operation(ops in ops()) {
+        run::<8>(TreeSettings::default(), &ops);
+    }
+
+    #[test]
+    fn width_16_without_margin_matches_oracle(ops in ops()) {
+        let settings = TreeSettings { margin: 0.0, displacement_factor: 0.0, ..eager_settings() };
+        run::<16>(settings, &ops);
+    }
+}
