@@ -1,1 +1,743 @@
-fn main() {}
+//! Side-by-side benchmark of `bevy_rtree` against its peers on the standard
+//! "town" scene (see /work/shared/BENCHMARK.md): rstar 0.14, parry3d 0.31's
+//! `Bvh`, and the flat / brute-force lower and upper limits.
+//!
+//! Groups:
+//! - `build/bulk_load_100k`, `build/insert_100k`: building an index of the
+//!   scene from scratch;
+//! - `frame/moves_10k`: applying one frame's 10,000 moves to a persistent
+//!   index (the scene is advanced untimed before each timed frame);
+//! - `query/boxes`: 1,000 box-overlap queries against a fresh and a churned
+//!   tree and the peers, all over the same boxes.
+//!
+//! Every contender's answers are checked against the oracle
+//! (`bevy_rtree::oracle::BruteForce`) before any timing; a disagreement
+//! panics.
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
+use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree};
+use criterion::{BatchSize, Criterion, SamplingMode, criterion_group, criterion_main};
+use glam::Vec3;
+use parry3d::bounding_volume::Aabb as ParryAabb;
+use parry3d::math::Vector as ParryVector;
+use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhWorkspace};
+use rstar::AABB as RstarEnvelope;
+use rstar::primitives::{GeomWithData, Rectangle};
+
+/// The scene's seed; every contender sees the same boxes and frames.
+const SEED: u64 = 0x5EED_2024;
+/// Frames of churn applied to the tree queried as "bevy_rtree_churned".
+const CHURN_FRAMES: usize = 600;
+/// Query boxes per `query/boxes` iteration.
+const QUERY_COUNT: usize = 1_000;
+/// Half extent of a query box (a cube, clamped to the world in y).
+const QUERY_HALF_EXTENT: f32 = 10.0;
+/// Frames applied to each moves contender before its answers are checked.
+const CHECK_FRAMES: usize = 5;
+/// Query boxes used by the moves group's correctness checks.
+const MOVE_CHECK_QUERIES: usize = 200;
+
+type RstarBox = GeomWithData<Rectangle<[f32; 3]>, u32>;
+
+// ---------------------------------------------------------------------------
+// Conversions and inputs.
+
+fn to_rstar(aabb: &Aabb, id: u32) -> RstarBox {
+    GeomWithData::new(
+        Rectangle::from_corners(aabb.min.to_array(), aabb.max.to_array()),
+        id,
+    )
+}
+
+fn rstar_envelope(aabb: &Aabb) -> RstarEnvelope<[f32; 3]> {
+    RstarEnvelope::from_corners(aabb.min.to_array(), aabb.max.to_array())
+}
+
+fn to_parry(aabb: &Aabb) -> ParryAabb {
+    ParryAabb::new(
+        ParryVector::from_array(aabb.min.to_array()),
+        ParryVector::from_array(aabb.max.to_array()),
+    )
+}
+
+fn keyed(boxes: &[Aabb]) -> Vec<(u32, Aabb)> {
+    boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (i as u32, *b))
+        .collect()
+}
+
+fn rstar_items(boxes: &[Aabb]) -> Vec<RstarBox> {
+    boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| to_rstar(b, i as u32))
+        .collect()
+}
+
+fn parry_leaves(boxes: &[Aabb]) -> Vec<ParryAabb> {
+    boxes.iter().map(to_parry).collect()
+}
+
+fn oracle_of(boxes: &[Aabb]) -> BruteForce<u32> {
+    let mut oracle = BruteForce::default();
+    for (i, b) in boxes.iter().enumerate() {
+        oracle.insert(i as u32, *b);
+    }
+    oracle
+}
+
+/// Deterministic query boxes: centres uniform in the world volume, a
+/// `QUERY_HALF_EXTENT` cube around each, clamped to the world in y.
+fn query_boxes(count: usize, seed: u64) -> Vec<Aabb> {
+    let mut rng = SceneRng::new(seed);
+    (0..count)
+        .map(|_| {
+            let c = Vec3::new(
+                rng.range(0.0, WORLD_MAX.x),
+                rng.range(0.0, WORLD_MAX.y),
+                rng.range(0.0, WORLD_MAX.z),
+            );
+            let mut min = c - Vec3::splat(QUERY_HALF_EXTENT);
+            let mut max = c + Vec3::splat(QUERY_HALF_EXTENT);
+            min.y = min.y.max(0.0);
+            max.y = max.y.min(WORLD_MAX.y);
+            Aabb::new(min, max).expect("query boxes are valid")
+        })
+        .collect()
+}
+
+fn bulk_tree(boxes: &[Aabb]) -> (RTree<u32>, Vec<ProxyId>) {
+    let mut tree = RTree::new();
+    let ids = tree
+        .insert_bulk(keyed(boxes))
+        .expect("scene boxes are valid");
+    (tree, ids)
+}
+
+// ---------------------------------------------------------------------------
+// The brute-force contender: a structure-of-arrays box list, tested 16 boxes
+// at a time into a bit mask (a loop the compiler vectorises).
+
+struct SoaBoxes {
+    min: [Vec<f32>; 3],
+    max: [Vec<f32>; 3],
+}
+
+impl SoaBoxes {
+    const LANES: usize = 16;
+
+    fn new(boxes: &[Aabb]) -> Self {
+        let axis = |f: &dyn Fn(&Aabb) -> f32| boxes.iter().map(f).collect::<Vec<f32>>();
+        SoaBoxes {
+            min: [axis(&|b| b.min.x), axis(&|b| b.min.y), axis(&|b| b.min.z)],
+            max: [axis(&|b| b.max.x), axis(&|b| b.max.y), axis(&|b| b.max.z)],
+        }
+    }
+
+    /// Appends the indices of all boxes overlapping `q` (closed boxes).
+    fn overlapping_into(&self, q: &Aabb, out: &mut Vec<u32>) {
+        let n = self.min[0].len();
+        let (qmin, qmax) = (q.min.to_array(), q.max.to_array());
+        let full = n / Self::LANES * Self::LANES;
+        for base in (0..full).step_by(Self::LANES) {
+            let end = base + Self::LANES;
+            let (x0, y0, z0) = (
+                &self.min[0][base..end],
+                &self.min[1][base..end],
+                &self.min[2][base..end],
+            );
+            let (x1, y1, z1) = (
+                &self.max[0][base..end],
+                &self.max[1][base..end],
+                &self.max[2][base..end],
+            );
+            let mut mask = 0u32;
+            for j in 0..Self::LANES {
+                let hit = (x0[j] <= qmax[0])
+                    & (x1[j] >= qmin[0])
+                    & (y0[j] <= qmax[1])
+                    & (y1[j] >= qmin[1])
+                    & (z0[j] <= qmax[2])
+                    & (z1[j] >= qmin[2]);
+                mask |= (hit as u32) << j;
+            }
+            while mask != 0 {
+                let j = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                out.push((base + j) as u32);
+            }
+        }
+        for i in full..n {
+            let hit = (0..3).all(|a| self.min[a][i] <= qmax[a] && self.max[a][i] >= qmin[a]);
+            if hit {
+                out.push(i as u32);
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Correctness helpers: sorted answers of each contender.
+
+fn sorted(mut v: Vec<u32>) -> Vec<u32> {
+    v.sort_unstable();
+    v
+}
+
+fn answer_rstar(tree: &rstar::RTree<RstarBox>, q: &Aabb) -> Vec<u32> {
+    sorted(
+        tree.locate_in_envelope_intersecting(rstar_envelope(q))
+            .map(|g| g.data)
+            .collect(),
+    )
+}
+
+fn answer_parry(bvh: &Bvh, q: &Aabb) -> Vec<u32> {
+    let pq = to_parry(q);
+    sorted(bvh.intersect_aabb(&pq).collect())
+}
+
+/// Panics with a readable message when `got` differs from the oracle.
+fn assert_same(who: &str, q: &Aabb, got: &[u32], want: &[u32]) {
+    if got != want {
+        let missing: Vec<_> = want.iter().filter(|k| !got.contains(k)).collect();
+        let extra: Vec<_> = got.iter().filter(|k| !want.contains(k)).collect();
+        panic!(
+            "{who} disagrees with the oracle on {q:?}: {} vs {} ids; missing {missing:?}, extra {extra:?}",
+            got.len(),
+            want.len()
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------
+// build/*
+
+fn bench_build(c: &mut Criterion) {
+    let scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
+    let boxes = scene.boxes().to_vec();
+    let parry = parry_leaves(&boxes);
+    let rstar = rstar_items(&boxes);
+
+    // Check every builder's output before timing.
+    let oracle = oracle_of(&boxes);
+    let checks = query_boxes(MOVE_CHECK_QUERIES, SEED ^ 0xB11D);
+    {
+        let (bulk, _) = bulk_tree(&boxes);
+        bulk.validate().unwrap();
+        let mut inserted = RTree::<u32>::new();
+        for (i, b) in boxes.iter().enumerate() {
+            inserted.insert(i as u32, *b).unwrap();
+        }
+        inserted.validate().unwrap();
+        let rstar_bulk = rstar::RTree::bulk_load(rstar.clone());
+        let mut rstar_ins = rstar::RTree::new();
+        for item in &rstar {
+            rstar_ins.insert(*item);
+        }
+        let parry_bulk = Bvh::from_leaves(BvhBuildStrategy::Binned, &parry);
+        let mut parry_ins = Bvh::new();
+        for (i, b) in parry.iter().enumerate() {
+            parry_ins.insert(*b, i as u32);
+        }
+        for q in &checks {
+            let want = oracle.overlapping(q);
+            assert_same("bevy_rtree bulk", q, &bulk.overlapping(q), &want);
+            assert_same("bevy_rtree insert", q, &inserted.overlapping(q), &want);
+            assert_same("rstar bulk", q, &answer_rstar(&rstar_bulk, q), &want);
+            assert_same("rstar insert", q, &answer_rstar(&rstar_ins, q), &want);
+            assert_same("parry3d bulk", q, &answer_parry(&parry_bulk, q), &want);
+            assert_same("parry3d insert", q, &answer_parry(&parry_ins, q), &want);
+        }
+        eprintln!(
+            "build check ok: bevy_rtree height bulk {} / inserted {}, nodes {} / {}",
+            bulk.height(),
+            inserted.height(),
+            bulk.node_count(),
+            inserted.node_count()
+        );
+    }
+
+    let mut group = c.benchmark_group("build/bulk_load_100k");
+    group.sampling_mode(SamplingMode::Flat).sample_size(10);
+    group.bench_function("bevy_rtree", |b| {
+        b.iter_batched(
+            || keyed(&boxes),
+            |input| {
+                let mut tree = RTree::<u32>::new();
+                let ids = tree.insert_bulk(input).unwrap();
+                (tree, ids)
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    group.bench_function("rstar", |b| {
+        b.iter_batched(
+            || rstar.clone(),
+            rstar::RTree::bulk_load,
+            BatchSize::LargeInput,
+        )
+    });
+    group.bench_function("parry3d", |b| {
+        b.iter_batched(
+            || (),
+            |()| Bvh::from_leaves(BvhBuildStrategy::Binned, black_box(&parry)),
+            BatchSize::LargeInput,
+        )
+    });
+    group.finish();
+
+    let mut group = c.benchmark_group("build/insert_100k");
+    group.sampling_mode(SamplingMode::Flat).sample_size(10);
+    group.bench_function("bevy_rtree", |b| {
+        b.iter_batched(
+            || (),
+            |()| {
+                let mut tree = RTree::<u32>::new();
+                for (i, aabb) in boxes.iter().enumerate() {
+                    tree.insert(i as u32, *aabb).unwrap();
+                }
+                tree
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    group.bench_function("rstar", |b| {
+        b.iter_batched(
+            || (),
+            |()| {
+                let mut tree = rstar::RTree::new();
+                for item in &rstar {
+                    tree.insert(*item);
+                }
+                tree
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    group.bench_function("parry3d", |b| {
+        b.iter_batched(
+            || (),
+            |()| {
+                let mut bvh = Bvh::new();
+                for (i, aabb) in parry.iter().enumerate() {
+                    bvh.insert(*aabb, i as u32);
+                }
+                bvh
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    group.finish();
+}
+
+// ---------------------------------------------------------------------------
+// frame/moves_10k
+//
+// Each contender owns a persistent index and its own clone of the scene. One
+// iteration advances its scene by a frame (untimed) and times only applying
+// that frame's moved boxes.
+
+/// Times `apply` on `iters` consecutive frames of `scene`, advancing the
+/// scene untimed before each.
+fn time_frames(
+    scene: &mut TownScene,
+    iters: u64,
+    mut apply: impl FnMut(&[u32], &[Aabb]),
+) -> Duration {
+    let mut total = Duration::ZERO;
+    for _ in 0..iters {
+        scene.advance_frame();
+        let (moved, boxes) = (scene.moved(), scene.boxes());
+        let start = Instant::now();
+        apply(moved, boxes);
+        total += start.elapsed();
+    }
+    total
+}
+
+struct BevyMoves {
+    scene: TownScene,
+    tree: RTree<u32>,
+    ids: Vec<ProxyId>,
+}
+
+impl BevyMoves {
+    fn new(scene: &TownScene) -> Self {
+        let (tree, ids) = bulk_tree(scene.boxes());
+        BevyMoves {
+            scene: scene.clone(),
+            tree,
+            ids,
+        }
+    }
+
+    fn apply(tree: &mut RTree<u32>, ids: &[ProxyId], moved: &[u32], boxes: &[Aabb]) {
+        for &i in moved {
+            tree.update(ids[i as usize], boxes[i as usize]).unwrap();
+        }
+        black_box(tree.optimize(usize::MAX));
+    }
+
+    fn frame(&mut self, iters: u64) -> Duration {
+        let (tree, ids) = (&mut self.tree, &self.ids);
+        time_frames(&mut self.scene, iters, |moved, boxes| {
+            Self::apply(tree, ids, moved, boxes)
+        })
+    }
+
+    fn check(&self, queries: &[Aabb]) {
+        self.tree.validate().unwrap();
+        let oracle = oracle_of(self.scene.boxes());
+        for q in queries {
+            assert_same(
+                "bevy_rtree (moves)",
+                q,
+                &self.tree.overlapping(q),
+                &oracle.overlapping(q),
+            );
+        }
+    }
+}
+
+struct RstarMoves {
+    scene: TownScene,
+    tree: rstar::RTree<RstarBox>,
+    /// The item each entity currently has in the tree (to remove it).
+    current: Vec<RstarBox>,
+}
+
+impl RstarMoves {
+    fn new(scene: &TownScene) -> Self {
+        let current = rstar_items(scene.boxes());
+        RstarMoves {
+            scene: scene.clone(),
+            tree: rstar::RTree::bulk_load(current.clone()),
+            current,
+        }
+    }
+
+    fn apply(
+        tree: &mut rstar::RTree<RstarBox>,
+        current: &mut [RstarBox],
+        moved: &[u32],
+        boxes: &[Aabb],
+    ) {
+        for &i in moved {
+            let new = to_rstar(&boxes[i as usize], i);
+            let old = std::mem::replace(&mut current[i as usize], new);
+            let removed = tree.remove(&old);
+            assert!(removed.is_some(), "rstar lost entity {i}");
+            tree.insert(new);
+        }
+    }
+
+    fn frame(&mut self, iters: u64) -> Duration {
+        let (tree, current) = (&mut self.tree, &mut self.current);
+        time_frames(&mut self.scene, iters, |moved, boxes| {
+            Self::apply(tree, current, moved, boxes)
+        })
+    }
+
+    fn check(&self, queries: &[Aabb]) {
+        assert_eq!(self.tree.size(), self.scene.len());
+        let oracle = oracle_of(self.scene.boxes());
+        for q in queries {
+            assert_same(
+                "rstar (moves)",
+                q,
+                &answer_rstar(&self.tree, q),
+                &oracle.overlapping(q),
+            );
+        }
+    }
+}
+
+struct ParryMoves {
+    scene: TownScene,
+    bvh: Bvh,
+    workspace: BvhWorkspace,
+    margin: f32,
+}
+
+impl ParryMoves {
+    fn new(scene: &TownScene, margin: f32) -> Self {
+        ParryMoves {
+            scene: scene.clone(),
+            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &parry_leaves(scene.boxes())),
+            workspace: BvhWorkspace::default(),
+            margin,
+        }
+    }
+
+    fn apply(bvh: &mut Bvh, ws: &mut BvhWorkspace, margin: f32, moved: &[u32], boxes: &[Aabb]) {
+        for &i in moved {
+            bvh.insert_or_update_partially(to_parry(&boxes[i as usize]), i, margin);
+        }
+        bvh.refit(ws);
+    }
+
+    fn frame(&mut self, iters: u64) -> Duration {
+        let (bvh, ws, margin) = (&mut self.bvh, &mut self.workspace, self.margin);
+        time_frames(&mut self.scene, iters, |moved, boxes| {
+            Self::apply(bvh, ws, margin, moved, boxes)
+        })
+    }
+
+    /// With a margin the leaves hold enlarged boxes, so the BVH answers a
+    /// superset; filtered by the exact boxes it must equal the oracle.
+    fn check(&self, queries: &[Aabb]) {
+        assert_eq!(self.bvh.leaf_count() as usize, self.scene.len());
+        let boxes = self.scene.boxes();
+        let oracle = oracle_of(boxes);
+        let who = format!("parry3d margin {} (moves)", self.margin);
+        for q in queries {
+            let want = oracle.overlapping(q);
+            let candidates = answer_parry(&self.bvh, q);
+            let exact: Vec<u32> = candidates
+                .iter()
+                .copied()
+                .filter(|&i| boxes[i as usize].intersects(q))
+                .collect();
+            assert_same(&who, q, &exact, &want);
+            if self.margin == 0.0 {
+                assert_same(&who, q, &candidates, &want);
+            }
+        }
+    }
+}
+
+struct FlatMoves {
+    scene: TownScene,
+    flat: Vec<Aabb>,
+}
+
+impl FlatMoves {
+    fn frame(&mut self, iters: u64) -> Duration {
+        let flat = &mut self.flat;
+        time_frames(&mut self.scene, iters, |moved, boxes| {
+            for &i in moved {
+                flat[i as usize] = boxes[i as usize];
+            }
+            black_box(&mut *flat);
+        })
+    }
+
+    fn check(&self) {
+        assert_eq!(self.flat, self.scene.boxes(), "flat array out of date");
+    }
+}
+
+fn bench_moves(c: &mut Criterion) {
+    let scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
+    let checks = query_boxes(MOVE_CHECK_QUERIES, SEED ^ 0x3073);
+
+    let mut bevy = BevyMoves::new(&scene);
+    let mut rstar = RstarMoves::new(&scene);
+    let mut parry0 = ParryMoves::new(&scene, 0.0);
+    let mut parry01 = ParryMoves::new(&scene, 0.1);
+    let mut flat = FlatMoves {
+        scene: scene.clone(),
+        flat: scene.boxes().to_vec(),
+    };
+
+    // A few frames, then check every contender against the oracle.
+    bevy.frame(CHECK_FRAMES as u64);
+    rstar.frame(CHECK_FRAMES as u64);
+    parry0.frame(CHECK_FRAMES as u64);
+    parry01.frame(CHECK_FRAMES as u64);
+    flat.frame(CHECK_FRAMES as u64);
+    bevy.check(&checks);
+    rstar.check(&checks);
+    parry0.check(&checks);
+    parry01.check(&checks);
+    flat.check();
+    eprintln!("moves check ok after {CHECK_FRAMES} frames");
+    bevy.tree.take_maintenance_stats();
+    let frames_before = bevy.scene.frame();
+
+    let mut group = c.benchmark_group("frame/moves_10k");
+    group.bench_function("bevy_rtree", |b| b.iter_custom(|iters| bevy.frame(iters)));
+    group.bench_function("rstar", |b| b.iter_custom(|iters| rstar.frame(iters)));
+    group.bench_function("parry3d_margin0", |b| {
+        b.iter_custom(|iters| parry0.frame(iters))
+    });
+    group.bench_function("parry3d_margin0.1", |b| {
+        b.iter_custom(|iters| parry01.frame(iters))
+    });
+    group.bench_function("flat_array", |b| b.iter_custom(|iters| flat.frame(iters)));
+    group.finish();
+
+    // The indexes went through many more frames while timed: check again.
+    bevy.check(&checks);
+    rstar.check(&checks);
+    parry0.check(&checks);
+    parry01.check(&checks);
+    flat.check();
+    let frames = (bevy.scene.frame() - frames_before).max(1);
+    let stats = bevy.tree.take_maintenance_stats();
+    eprintln!(
+        "moves bench: bevy_rtree ran {frames} timed/warm-up frames; per frame: in place {:.0}, in leaf {:.0}, reinserted {:.0}, splits {:.1}, condensed {:.1}, repacks {:.1}; height {}; post-check ok",
+        stats.moves_in_place as f64 / frames as f64,
+        stats.moves_in_leaf as f64 / frames as f64,
+        stats.moves_reinserted as f64 / frames as f64,
+        stats.splits as f64 / frames as f64,
+        stats.condensed_nodes as f64 / frames as f64,
+        stats.repacks as f64 / frames as f64,
+        bevy.tree.height()
+    );
+}
+
+// ---------------------------------------------------------------------------
+// query/boxes
+
+fn bench_queries(c: &mut Criterion) {
+    // The churned tree: 600 frames of moves + optimize on the standard scene.
+    let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
+    let (mut churned, ids) = bulk_tree(scene.boxes());
+    churned.take_maintenance_stats();
+    let start = Instant::now();
+    for _ in 0..CHURN_FRAMES {
+        scene.advance_frame();
+        BevyMoves::apply(&mut churned, &ids, scene.moved(), scene.boxes());
+    }
+    churned.validate().unwrap();
+    let s = churned.take_maintenance_stats();
+    eprintln!(
+        "churn {CHURN_FRAMES} frames ({:.1} s): moves in place {}, in leaf {}, reinserted {}; splits {}, condensed {}, repacks {}; height {}, nodes {}",
+        start.elapsed().as_secs_f64(),
+        s.moves_in_place,
+        s.moves_in_leaf,
+        s.moves_reinserted,
+        s.splits,
+        s.condensed_nodes,
+        s.repacks,
+        churned.height(),
+        churned.node_count()
+    );
+
+    // Every other contender indexes the churned scene's current boxes.
+    let boxes = scene.boxes().to_vec();
+    let (fresh, _) = bulk_tree(&boxes);
+    let rstar = rstar::RTree::bulk_load(rstar_items(&boxes));
+    let parry = Bvh::from_leaves(BvhBuildStrategy::Binned, &parry_leaves(&boxes));
+    let soa = SoaBoxes::new(&boxes);
+    let queries = query_boxes(QUERY_COUNT, SEED ^ 0x0E17);
+    let rstar_queries: Vec<_> = queries.iter().map(rstar_envelope).collect();
+    let parry_queries: Vec<_> = queries.iter().map(to_parry).collect();
+
+    // Check every contender on every query box. rstar and parry use closed
+    // boxes like the oracle, with the same f32 comparisons, so the answers
+    // must be identical (no tolerance for touching boxes is needed).
+    let oracle = oracle_of(&boxes);
+    let mut hits = 0usize;
+    let mut ws_fresh = QueryWorkspace::default();
+    let mut ws_churned = QueryWorkspace::default();
+    for q in &queries {
+        let want = oracle.overlapping(q);
+        hits += want.len();
+        let mut got = Vec::new();
+        fresh.overlapping_into(q, &mut ws_fresh, &mut got);
+        assert_same("bevy_rtree_fresh", q, &sorted(got), &want);
+        let mut got = Vec::new();
+        churned.overlapping_into(q, &mut ws_churned, &mut got);
+        assert_same("bevy_rtree_churned", q, &sorted(got), &want);
+        assert_same("rstar", q, &answer_rstar(&rstar, q), &want);
+        assert_same("parry3d", q, &answer_parry(&parry, q), &want);
+        let mut got = Vec::new();
+        soa.overlapping_into(q, &mut got);
+        assert_same("brute_force", q, &got, &want);
+    }
+    let per_query = |ws: &mut QueryWorkspace| {
+        let s = ws.take_stats();
+        (
+            s.nodes_visited as f64 / QUERY_COUNT as f64,
+            s.entries_tested as f64 / QUERY_COUNT as f64,
+        )
+    };
+    let (fresh_nodes, fresh_entries) = per_query(&mut ws_fresh);
+    let (churned_nodes, churned_entries) = per_query(&mut ws_churned);
+    eprintln!(
+        "query check ok: {QUERY_COUNT} boxes, {:.1} hits/query; per query fresh: {fresh_nodes:.1} nodes, {fresh_entries:.1} entries tested (height {}); churned: {churned_nodes:.1} nodes, {churned_entries:.1} entries (height {})",
+        hits as f64 / QUERY_COUNT as f64,
+        fresh.height(),
+        churned.height()
+    );
+
+    let mut group = c.benchmark_group("query/boxes");
+    for (name, tree) in [
+        ("bevy_rtree_fresh", &fresh),
+        ("bevy_rtree_churned", &churned),
+    ] {
+        group.bench_function(name, |b| {
+            let mut ws = QueryWorkspace::default();
+            let mut out = Vec::new();
+            b.iter(|| {
+                let mut total = 0;
+                for q in &queries {
+                    out.clear();
+                    tree.overlapping_into(q, &mut ws, &mut out);
+                    total += out.len();
+                }
+                black_box(total)
+            })
+        });
+    }
+    group.bench_function("rstar", |b| {
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut total = 0;
+            for q in &rstar_queries {
+                out.clear();
+                out.extend(rstar.locate_in_envelope_intersecting(*q).map(|g| g.data));
+                total += out.len();
+            }
+            black_box(total)
+        })
+    });
+    group.bench_function("parry3d", |b| {
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut total = 0;
+            for q in &parry_queries {
+                out.clear();
+                out.extend(parry.intersect_aabb(q));
+                total += out.len();
+            }
+            black_box(total)
+        })
+    });
+    group.bench_function("brute_force", |b| {
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut total = 0;
+            for q in &queries {
+                out.clear();
+                soa.overlapping_into(q, &mut out);
+                total += out.len();
+            }
+            black_box(total)
+        })
+    });
+    group.finish();
+}
+
+fn config() -> Criterion {
+    Criterion::default()
+        .sample_size(20)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3))
+}
+
+criterion_group! {
+    name = benches;
+    config = config();
+    targets = bench_build, bench_moves, bench_queries
+}
+criterion_main!(benches);

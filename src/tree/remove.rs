@@ -83,7 +83,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.maintenance.condensed_nodes += 1;
             } else {
                 let bound = self.node_bound(current);
-                self.nodes[parent as usize].set_lane_box(lane, &bound);
+                let holder = &mut self.nodes[parent as usize];
+                if holder.lane_box(lane) == bound {
+                    // Nothing above can change: every ancestor already holds
+                    // this bound and lost no child.
+                    break;
+                }
+                holder.set_lane_box(lane, &bound);
             }
             current = parent;
         }

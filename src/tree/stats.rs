@@ -25,7 +25,10 @@ pub struct MaintenanceStats {
     /// Moves that left the enlarged box but stayed inside the leaf's bound:
     /// a new enlarged box and one lane write, no structural change.
     pub moves_in_leaf: u64,
-    /// Moves that left the leaf's bound: the entry was reinserted.
+    /// Moves that left the leaf's bound but not its parent's: the leaf's
+    /// bound grew, O(1).
+    pub moves_leaf_grown: u64,
+    /// Moves that left the leaf's parent's bound: the entry was reinserted.
     pub moves_reinserted: u64,
     /// Node splits.
     pub splits: u64,

@@ -14,7 +14,12 @@ pub enum MoveKind {
     /// The entry got a new enlarged box that still fits its leaf's bound:
     /// one lane write, no structural change.
     InLeaf,
-    /// The entry left its leaf's bound and was reinserted from the root.
+    /// The entry left its leaf's bound but stayed inside the bound of the
+    /// leaf's parent: the leaf's bound grew to take it, O(1). The parent is
+    /// marked churned, so [`RTree::optimize`] later re-tiles its leaves.
+    LeafGrown,
+    /// The entry left its leaf's parent's bound and was reinserted from the
+    /// root.
     Reinserted,
 }
 
@@ -65,6 +70,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
 
         let old_parent = self.nodes[leaf as usize].parent;
+        if self.try_grow_leaf(leaf, &new_fat) {
+            self.proxies[proxy as usize].fat = new_fat;
+            self.nodes[leaf as usize].set_lane_box(lane, &aabb);
+            self.note_churn(old_parent);
+            self.maintenance.moves_leaf_grown += 1;
+            return MoveKind::LeafGrown;
+        }
+
         self.detach(proxy);
         self.proxies[proxy as usize].fat = new_fat;
         let new_leaf = self.insert_entry(
@@ -96,6 +109,35 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             Some(lane) => p.lane_box(lane).contains(fat),
             None => false,
         }
+    }
+
+    /// Grows the bound the parent holds for `leaf` to take `fat`, if the
+    /// parent's own bound (held by the grandparent) already contains `fat`.
+    /// Nothing above the parent changes, so this is O(1); a parent that is
+    /// the root has no bound to stay within, and is left to reinsertion.
+    fn try_grow_leaf(&mut self, leaf: u32, fat: &Aabb) -> bool {
+        let parent = self.nodes[leaf as usize].parent;
+        if parent == NIL {
+            return false;
+        }
+        let grandparent = self.nodes[parent as usize].parent;
+        if grandparent == NIL {
+            return false;
+        }
+        let g = &self.nodes[grandparent as usize];
+        let fits = g
+            .lane_of(parent)
+            .is_some_and(|lane| g.lane_box(lane).contains(fat));
+        if !fits {
+            return false;
+        }
+        let p = &mut self.nodes[parent as usize];
+        let Some(lane) = p.lane_of(leaf) else {
+            return false;
+        };
+        let grown = p.lane_box(lane).union(fat);
+        p.set_lane_box(lane, &grown);
+        true
     }
 
     /// Counts a restructuring move against a level-1 node and queues it for

@@ -1,0 +1,202 @@
+//! Bad input gets a typed error, leaves the index unchanged, and causes no
+//! panic later (SEMANTICS S2 and the bad-input hard cases).
+
+mod common;
+
+use bevy_rtree::{Aabb, ProxyId, RTree, Ray, SpatialError, TreeSettings};
+use glam::Vec3;
+
+/// Everything observable about a tree, for before/after comparisons.
+fn snapshot(tree: &RTree<u32>) -> (usize, Vec<u32>, Vec<(u32, [f32; 6])>) {
+    let everything = Aabb::new(Vec3::splat(-1e15), Vec3::splat(1e15)).unwrap();
+    let mut entries: Vec<(u32, [f32; 6])> = tree
+        .iter()
+        .map(|(_, k, b)| (k, [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z]))
+        .collect();
+    entries.sort_by_key(|e| e.0);
+    (tree.len(), tree.overlapping(&everything), entries)
+}
+
+fn populated() -> (RTree<u32>, Vec<ProxyId>) {
+    let mut tree = RTree::new();
+    let ids = (0..300u32)
+        .map(|i| {
+            let p = Vec3::new((i % 17) as f32, (i / 17) as f32, 0.0);
+            tree.insert(i, Aabb::new(p, p + Vec3::ONE).unwrap())
+                .unwrap()
+        })
+        .collect();
+    (tree, ids)
+}
+
+#[test]
+fn invalid_boxes_are_refused_by_every_mutation() {
+    let (mut tree, ids) = populated();
+    let before = snapshot(&tree);
+    for bad in common::invalid_boxes() {
+        assert_eq!(
+            tree.insert(999, bad),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
+        assert_eq!(
+            tree.update(ids[5], bad),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
+        let bulk = vec![(1000, common::aabb([0.0; 3], [1.0; 3])), (1001, bad)];
+        assert_eq!(
+            tree.insert_bulk(bulk),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
+        tree.validate().unwrap();
+        assert_eq!(snapshot(&tree), before);
+    }
+    // Nothing broke for later: the tree keeps working normally.
+    tree.update(ids[5], common::aabb([50.0; 3], [51.0; 3]))
+        .unwrap();
+    tree.remove(ids[6]).unwrap();
+    tree.validate().unwrap();
+}
+
+#[test]
+fn invalid_queries_match_nothing_and_do_not_panic() {
+    let (tree, _) = populated();
+    for bad in common::invalid_boxes() {
+        if bad == Aabb::INVERTED {
+            assert!(tree.overlapping(&bad).is_empty());
+        }
+        // NaN in any coordinate makes every comparison false.
+        if bad.min.is_nan() || bad.max.is_nan() {
+            assert!(tree.overlapping(&bad).is_empty());
+        }
+    }
+    assert!(tree.containing_point(Vec3::NAN).is_empty());
+}
+
+#[test]
+fn unknown_and_stale_handles_are_refused() {
+    let (mut tree, ids) = populated();
+    let mut other = RTree::new();
+    let foreign = (0..400u32)
+        .map(|i| other.insert(i, common::aabb([0.0; 3], [1.0; 3])).unwrap())
+        .last()
+        .unwrap();
+    let before = snapshot(&tree);
+    assert_eq!(tree.remove(foreign), Err(SpatialError::UnknownProxy));
+    assert_eq!(
+        tree.update(foreign, common::aabb([0.0; 3], [1.0; 3])),
+        Err(SpatialError::UnknownProxy)
+    );
+    assert_eq!(snapshot(&tree), before);
+
+    tree.remove(ids[0]).unwrap();
+    let reused = tree.insert(77, common::aabb([0.0; 3], [1.0; 3])).unwrap();
+    assert_eq!(reused.index(), ids[0].index(), "the slot is reused");
+    assert_eq!(tree.remove(ids[0]), Err(SpatialError::UnknownProxy));
+    assert_eq!(tree.get(ids[0]), Err(SpatialError::UnknownProxy));
+    assert_eq!(tree.get(reused).unwrap().0, 77);
+    tree.validate().unwrap();
+}
+
+#[test]
+fn invalid_settings_are_refused() {
+    let bad = [
+        TreeSettings {
+            margin: -1.0,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            margin: f32::NAN,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            margin_fraction: f32::INFINITY,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            displacement_factor: -0.5,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            repack_threshold: 0,
+            ..TreeSettings::default()
+        },
+    ];
+    for settings in bad {
+        assert_eq!(
+            RTree::<u32>::with_settings(settings).map(|_| ()),
+            Err(SpatialError::InvalidSettings)
+        );
+    }
+}
+
+#[test]
+fn bad_rays_are_typed_errors() {
+    let cases = [
+        Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::ZERO,
+            max_t: 1.0,
+        },
+        Ray {
+            origin: Vec3::NAN,
+            dir: Vec3::X,
+            max_t: 1.0,
+        },
+        Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::new(f32::INFINITY, 0.0, 0.0),
+            max_t: 1.0,
+        },
+        Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::X,
+            max_t: -1.0,
+        },
+        Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::X,
+            max_t: f32::NAN,
+        },
+        Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::splat(1e-40),
+            max_t: 1.0,
+        },
+    ];
+    for ray in cases {
+        assert_eq!(
+            ray.canonicalized(),
+            Err(SpatialError::InvalidRay),
+            "{ray:?}"
+        );
+    }
+    let subnormal = Ray::new(Vec3::ZERO, Vec3::new(1.0, -1e-40, -0.0), f32::INFINITY).unwrap();
+    assert_eq!(
+        subnormal.dir.to_array().map(f32::to_bits),
+        [1f32.to_bits(), 0, 0]
+    );
+}
+
+#[test]
+fn world_boxes_from_transforms_round_outward() {
+    use glam::{Affine3A, Quat};
+    let local = common::aabb([-0.3; 3], [0.7; 3]);
+    let far = Vec3::new(1e6, -2e6, 3e5);
+    let transform = Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), far);
+    let world = local.transformed(&transform).unwrap();
+    // Every transformed corner of the local box lies inside the world box.
+    for i in 0..8 {
+        let corner = Vec3::new(
+            if i & 1 == 0 { local.min.x } else { local.max.x },
+            if i & 2 == 0 { local.min.y } else { local.max.y },
+            if i & 4 == 0 { local.min.z } else { local.max.z },
+        );
+        let p = transform.transform_point3(corner);
+        assert!(world.contains_point(p), "corner {p} outside {world:?}");
+    }
+    let bad = Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0));
+    assert_eq!(local.transformed(&bad), Err(SpatialError::InvalidBox));
+}

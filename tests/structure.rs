@@ -1,0 +1,220 @@
+//! The structure cases of SEMANTICS.md: orderings of inserts and removals,
+//! identical boxes, sorted and gridded input, huge teleports, and the
+//! height the tree keeps on each.
+
+mod common;
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::{Aabb, MoveKind, ProxyId, RTree, TreeSettings};
+use glam::Vec3;
+
+fn unit_at(p: Vec3) -> Aabb {
+    Aabb::new(p, p + Vec3::ONE).unwrap()
+}
+
+/// The height of a perfectly packed tree of `n` entries and width `w`.
+fn optimal_height(n: usize, w: usize) -> usize {
+    let mut height = 1;
+    let mut capacity = w;
+    while capacity < n {
+        capacity *= w;
+        height += 1;
+    }
+    height
+}
+
+fn fill<const W: usize>(n: usize) -> (RTree<u32, W>, Vec<ProxyId>) {
+    let mut tree = RTree::<u32, W>::with_settings(TreeSettings::default()).unwrap();
+    let mut ids = Vec::new();
+    for i in 0..n as u32 {
+        let p = Vec3::new((i * 37 % 101) as f32, (i * 11 % 7) as f32, (i % 13) as f32);
+        ids.push(tree.insert(i, unit_at(p)).unwrap());
+        tree.validate().unwrap();
+    }
+    (tree, ids)
+}
+
+fn remove_in<const W: usize>(n: usize, order: impl Iterator<Item = usize>) {
+    let (mut tree, ids) = fill::<W>(n);
+    let probe = Aabb::new(Vec3::splat(-1.0), Vec3::splat(200.0)).unwrap();
+    let mut alive: Vec<bool> = vec![true; n];
+    for i in order {
+        assert_eq!(tree.remove(ids[i]), Ok(i as u32));
+        alive[i] = false;
+        tree.validate().unwrap();
+        let expected: Vec<u32> = (0..n as u32).filter(|&k| alive[k as usize]).collect();
+        assert_eq!(tree.overlapping(&probe), expected);
+    }
+    assert!(tree.is_empty());
+}
+
+#[test]
+fn insert_then_remove_all_in_order_reverse_and_odd_even() {
+    for n in 1..=100 {
+        remove_in::<4>(n, 0..n);
+        remove_in::<8>(n, (0..n).rev());
+        remove_in::<8>(n, (0..n).step_by(2).chain((1..n).step_by(2)));
+        remove_in::<16>(n, (0..n).step_by(2).chain((1..n).step_by(2)));
+    }
+}
+
+#[test]
+fn ten_thousand_identical_boxes() {
+    let mut tree = RTree::new();
+    let same = unit_at(Vec3::splat(3.0));
+    let ids: Vec<ProxyId> = (0..10_000u32)
+        .map(|i| tree.insert(i, same).unwrap())
+        .collect();
+    tree.validate().unwrap();
+    assert_eq!(tree.overlapping(&same).len(), 10_000);
+    assert!(
+        tree.height() <= 2 * optimal_height(10_000, 8),
+        "height {}",
+        tree.height()
+    );
+    for id in ids.iter().step_by(2) {
+        tree.remove(*id).unwrap();
+    }
+    tree.validate().unwrap();
+    let left = tree.overlapping(&same);
+    assert_eq!(left, (1..10_000u32).step_by(2).collect::<Vec<_>>());
+    assert!(tree.overlapping(&unit_at(Vec3::splat(5.0))).is_empty());
+}
+
+#[test]
+fn sorted_line_and_grid_keep_a_low_tree() {
+    let mut line = RTree::new();
+    for i in 0..20_000u32 {
+        line.insert(i, unit_at(Vec3::new(i as f32 * 2.0, 0.0, 0.0)))
+            .unwrap();
+    }
+    line.validate().unwrap();
+    assert!(
+        line.height() <= 2 * optimal_height(20_000, 8),
+        "line height {}",
+        line.height()
+    );
+
+    let mut grid = RTree::new();
+    let mut key = 0u32;
+    for x in 0..30 {
+        for y in 0..30 {
+            for z in 0..30 {
+                grid.insert(key, unit_at(Vec3::new(x as f32, y as f32, z as f32) * 1.5))
+                    .unwrap();
+                key += 1;
+            }
+        }
+    }
+    grid.validate().unwrap();
+    assert!(
+        grid.height() <= 2 * optimal_height(27_000, 8),
+        "grid height {}",
+        grid.height()
+    );
+    // One cell of the grid and its touching neighbours.
+    let probe = Aabb::new(Vec3::splat(15.0), Vec3::splat(16.0)).unwrap();
+    assert_eq!(grid.overlapping(&probe).len(), 1);
+}
+
+#[test]
+fn teleports_of_a_million_metres_and_back() {
+    let mut tree = RTree::new();
+    let mut oracle = BruteForce::default();
+    let mut ids = Vec::new();
+    for i in 0..2_000u32 {
+        let b = unit_at(Vec3::new((i % 50) as f32 * 3.0, (i / 50) as f32 * 3.0, 0.0));
+        ids.push(tree.insert(i, b).unwrap());
+        oracle.insert(i, b);
+    }
+    for round in 0..3 {
+        for (i, id) in ids.iter().enumerate().filter(|(i, _)| i % 3 == round) {
+            let far = unit_at(Vec3::new(1e6, -1e6, 1e6) + Vec3::splat(i as f32));
+            let kind = tree.update(*id, far).unwrap();
+            // The first teleports must restructure; later ones may land in a
+            // region the tree already grew towards (any kind is correct then).
+            if round == 0 {
+                assert_eq!(kind, MoveKind::Reinserted);
+            }
+            oracle.update(i as u32, far);
+        }
+        tree.validate().unwrap();
+        let far_probe =
+            Aabb::new(Vec3::new(1e6, -1e6, 1e6), Vec3::new(1.1e6, -0.9e6, 1.1e6)).unwrap();
+        assert_eq!(tree.overlapping(&far_probe), oracle.overlapping(&far_probe));
+        let home = Aabb::new(Vec3::splat(-1.0), Vec3::new(200.0, 200.0, 1.0)).unwrap();
+        assert_eq!(tree.overlapping(&home), oracle.overlapping(&home));
+    }
+}
+
+#[test]
+fn remove_and_reinsert_in_one_frame() {
+    let (mut tree, mut ids) = fill::<8>(500);
+    for i in (0..500).step_by(3) {
+        let (key, aabb) = tree.get(ids[i]).unwrap();
+        tree.remove(ids[i]).unwrap();
+        let again = tree.insert(key, aabb).unwrap();
+        assert!(tree.get(ids[i]).is_err(), "the old handle is stale");
+        ids[i] = again;
+    }
+    tree.validate().unwrap();
+    assert_eq!(tree.len(), 500);
+    for (i, id) in ids.iter().enumerate() {
+        assert_eq!(tree.get(*id).unwrap().0, i as u32);
+    }
+}
+
+#[test]
+fn small_moves_are_absorbed_without_restructuring() {
+    let (mut tree, ids) = fill::<8>(1_000);
+    tree.take_maintenance_stats();
+    for id in &ids {
+        let (_, b) = tree.get(*id).unwrap();
+        let nudged = Aabb {
+            min: b.min + 0.05,
+            max: b.max + 0.05,
+        };
+        assert_eq!(tree.update(*id, nudged), Ok(MoveKind::InPlace));
+    }
+    let stats = tree.take_maintenance_stats();
+    assert_eq!(stats.moves_in_place, 1_000);
+    assert_eq!(stats.moves_reinserted + stats.splits, 0);
+    tree.validate().unwrap();
+}
+
+#[test]
+fn bulk_load_gives_an_optimal_height_and_optimize_keeps_it_valid() {
+    let mut tree = RTree::new();
+    let scene = bevy_rtree::scene::TownScene::new(20_000, 7);
+    let ids = tree
+        .insert_bulk(
+            scene
+                .boxes()
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (i as u32, *b)),
+        )
+        .unwrap();
+    tree.validate().unwrap();
+    assert_eq!(tree.height(), optimal_height(20_000, 8));
+    let mut scene = scene;
+    for _ in 0..30 {
+        let moved = scene.advance_frame().to_vec();
+        for i in moved {
+            tree.update(ids[i as usize], scene.boxes()[i as usize])
+                .unwrap();
+        }
+        tree.optimize(usize::MAX);
+        tree.validate().unwrap();
+    }
+    let mut oracle = BruteForce::default();
+    for (i, b) in scene.boxes().iter().enumerate() {
+        oracle.insert(i as u32, *b);
+    }
+    let probe = Aabb::new(
+        Vec3::new(900.0, 0.0, 900.0),
+        Vec3::new(1100.0, 100.0, 1100.0),
+    )
+    .unwrap();
+    assert_eq!(tree.overlapping(&probe), oracle.overlapping(&probe));
+}
