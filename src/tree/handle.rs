@@ -24,9 +24,10 @@ impl ProxyId {
     }
 }
 
-/// What the tree knows about one entry besides the exact box in its leaf lane.
+/// What the tree knows about one entry besides its exact box (in its leaf
+/// lane) and its key (in the tree's dense key array, which traversals read).
 #[derive(Clone, Debug)]
-pub(crate) struct Proxy<K> {
+pub(crate) struct Proxy {
     /// The enlarged box the tree's structure is built from (contains the
     /// exact box). Small moves inside it change nothing structural.
     pub fat: Aabb,
@@ -36,11 +37,9 @@ pub(crate) struct Proxy<K> {
     pub lane: u32,
     /// Bumped on every removal so stale handles are detected.
     pub generation: u32,
-    /// The caller's key; answers are ordered and reported by it.
-    pub key: K,
 }
 
-impl<K> Proxy<K> {
+impl Proxy {
     #[inline]
     pub fn is_live(&self) -> bool {
         self.leaf != NIL

@@ -97,7 +97,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let len = self.nodes[node as usize].len();
         if len < W {
             self.write_lane(node, len, &entry);
-            self.nodes[node as usize].len += 1;
+            let n = &mut self.nodes[node as usize];
+            n.len += 1;
+            n.refresh_order();
             return node;
         }
         self.split_and_add(node, entry)
@@ -146,6 +148,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             );
             self.write_lane(root, 1, &sibling_entry);
             self.nodes[root as usize].len = 2;
+            self.nodes[root as usize].refresh_order();
             self.root = root;
         } else {
             let lane = self.nodes[parent as usize]
@@ -199,5 +202,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             n.clear_lane(lane);
         }
         n.len = entries.len() as u16;
+        n.refresh_order();
     }
 }

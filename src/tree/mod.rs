@@ -71,7 +71,13 @@ pub struct RTree<K, const W: usize = 8> {
     free_nodes: Vec<u32>,
     root: u32,
     /// The entry records, indexed by `ProxyId::index`.
-    proxies: Vec<Proxy<K>>,
+    proxies: Vec<Proxy>,
+    /// The entries' keys, indexed like `proxies`; kept apart so traversals
+    /// that report keys read a dense array.
+    keys: Vec<K>,
+    /// Restructuring moves absorbed per node since its last repack, indexed
+    /// like `nodes`; drives `optimize`.
+    churn: Vec<u32>,
     free_proxies: Vec<u32>,
     len: usize,
     settings: TreeSettings,
@@ -108,6 +114,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             free_nodes: Vec::new(),
             root: 0,
             proxies: Vec::new(),
+            keys: Vec::new(),
+            churn: vec![0],
             free_proxies: Vec::new(),
             len: 0,
             settings,
@@ -146,7 +154,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let index = self.check(id)?;
         let proxy = &self.proxies[index as usize];
         let aabb = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
-        Ok((proxy.key, aabb))
+        Ok((self.keys[index as usize], aabb))
     }
 
     /// The enlarged box the structure uses for a live entry (for diagnostics;
@@ -174,7 +182,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 };
                 (
                     id,
-                    p.key,
+                    self.keys[i],
                     self.nodes[p.leaf as usize].lane_box(p.lane as usize),
                 )
             })
@@ -191,6 +199,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.free_proxies = (0..self.proxies.len() as u32).rev().collect();
         self.nodes.clear();
         self.nodes.push(Node::empty(0, NIL));
+        self.churn.clear();
+        self.churn.push(0);
         self.free_nodes.clear();
         self.dirty.clear();
         self.root = 0;
@@ -224,17 +234,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     #[inline]
     pub(crate) fn key_of(&self, proxy: u32) -> K {
-        self.proxies[proxy as usize].key
+        self.keys[proxy as usize]
     }
 
     fn alloc_node(&mut self, level: u16, parent: u32) -> u32 {
         match self.free_nodes.pop() {
             Some(index) => {
                 self.nodes[index as usize] = Node::empty(level, parent);
+                self.churn[index as usize] = 0;
                 index
             }
             None => {
                 self.nodes.push(Node::empty(level, parent));
+                self.churn.push(0);
                 (self.nodes.len() - 1) as u32
             }
         }
@@ -249,9 +261,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     fn alloc_proxy(&mut self, key: K, fat: Aabb) -> u32 {
         match self.free_proxies.pop() {
             Some(index) => {
-                let proxy = &mut self.proxies[index as usize];
-                proxy.key = key;
-                proxy.fat = fat;
+                self.proxies[index as usize].fat = fat;
+                self.keys[index as usize] = key;
                 index
             }
             None => {
@@ -260,8 +271,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     leaf: NIL,
                     lane: 0,
                     generation: 0,
-                    key,
                 });
+                self.keys.push(key);
                 (self.proxies.len() - 1) as u32
             }
         }

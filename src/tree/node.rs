@@ -30,18 +30,20 @@ pub(crate) struct Node<const W: usize> {
     pub child: [u32; W],
     /// Parent node index, `NIL` at the root. 4 bytes.
     pub parent: u32,
-    /// Moves that restructured this node's subtree since it was last
-    /// repacked; drives [`RTree::optimize`](super::RTree::optimize). 4 bytes.
-    pub churn: u32,
+    /// Lanes in ascending order of their box centre along x, y and z
+    /// (internal nodes only): rays visit children near-to-far by reading
+    /// the order of their dominant axis forwards or backwards. 3·W bytes.
+    pub order: [[u8; W]; 3],
     /// Number of used lanes (`0..=W`); used lanes come first. 2 bytes.
     pub len: u16,
     /// Height above the leaves (0 = leaf), or `FREE_LEVEL`. 2 bytes.
     pub level: u16,
 }
 
-// The node is exactly 32·W bytes (W = 8: four cache lines), so nodes never
-// straddle more lines than they must.
-const _: () = assert!(std::mem::size_of::<Node<4>>() == 128);
+// W = 8 and 16 fill exactly 32·W bytes (four and eight cache lines), so
+// nodes never straddle more lines than they must; W = 4 needs 132 bytes and
+// rounds up to three lines.
+const _: () = assert!(std::mem::size_of::<Node<4>>() == 192);
 const _: () = assert!(std::mem::size_of::<Node<8>>() == 256);
 const _: () = assert!(std::mem::size_of::<Node<16>>() == 512);
 
@@ -52,8 +54,8 @@ impl<const W: usize> Node<W> {
             min: [[f32::INFINITY; W]; 3],
             max: [[f32::NEG_INFINITY; W]; 3],
             child: [NIL; W],
+            order: [std::array::from_fn(|i| i as u8); 3],
             parent,
-            churn: 0,
             len: 0,
             level,
         }
@@ -97,6 +99,22 @@ impl<const W: usize> Node<W> {
     /// The union of the used lanes' boxes.
     pub fn lanes_union(&self) -> Aabb {
         (0..self.len()).fold(Aabb::INVERTED, |acc, lane| acc.union(&self.lane_box(lane)))
+    }
+
+    /// Recomputes `order` from the lane boxes. Called when the set of
+    /// children changes; growth of a lane box alone keeps the old order,
+    /// which stays a good visiting order and costs nothing to keep.
+    pub fn refresh_order(&mut self) {
+        if self.is_leaf() {
+            return;
+        }
+        let len = self.len();
+        for axis in 0..3 {
+            let centre = |lane: usize| self.min[axis][lane] + self.max[axis][lane];
+            let mut lanes: [u8; W] = std::array::from_fn(|i| i as u8);
+            lanes[..len].sort_unstable_by(|&a, &b| centre(a as usize).total_cmp(&centre(b as usize)));
+            self.order[axis] = lanes;
+        }
     }
 
     /// The lane holding `child`, if any.

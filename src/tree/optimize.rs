@@ -49,7 +49,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Re-tiles the grandchildren of `node` among its children.
     fn repack(&mut self, node: u32) {
         self.maintenance.repacks += 1;
-        self.nodes[node as usize].churn = 0;
+        self.churn[node as usize] = 0;
         let children: SmallVec<[u32; 16]> = {
             let n = &self.nodes[node as usize];
             n.child[..n.len()].iter().copied().collect()
@@ -67,5 +67,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let bound = self.node_bound(child);
             self.nodes[node as usize].set_lane_box(lane, &bound);
         }
+        self.nodes[node as usize].refresh_order();
     }
 }

@@ -32,7 +32,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.free_proxies.push(proxy);
         self.len -= 1;
         self.maintenance.removals += 1;
-        Ok(record.key)
+        Ok(self.keys[proxy as usize])
     }
 
     /// Takes a live proxy out of its leaf and condenses the tree. The proxy
@@ -57,6 +57,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         n.clear_lane(last);
         n.len -= 1;
+        n.refresh_order();
         if lane != last {
             self.link(node, lane);
         }

@@ -147,12 +147,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return;
         }
         let threshold = self.settings.repack_threshold;
-        let n = &mut self.nodes[node as usize];
-        if n.level != 1 {
+        if self.nodes[node as usize].level != 1 {
             return;
         }
-        n.churn += 1;
-        if n.churn == threshold {
+        let churn = &mut self.churn[node as usize];
+        *churn += 1;
+        if *churn == threshold {
             self.dirty.push(node);
         }
     }

@@ -76,6 +76,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     Self::MIN_FILL
                 );
             }
+            if !node.is_leaf() {
+                for (axis, order) in node.order.iter().enumerate() {
+                    let mut lanes: Vec<u8> = order[..len].to_vec();
+                    lanes.sort_unstable();
+                    let permutation = lanes.iter().enumerate().all(|(i, &l)| i == l as usize);
+                    ensure!(permutation, "node {index} order on axis {axis} is not a permutation of its lanes");
+                }
+            }
             for lane in len..W {
                 let unused = node.lane_box(lane) == Aabb::INVERTED && node.child[lane] == NIL;
                 ensure!(unused, "node {index} lane {lane} is unused but not cleared");
@@ -144,7 +152,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             "proxy free list and live proxies do not add up"
         );
         for &free in &self.free_nodes {
-            ensure!(!seen[free as usize], "free node {free} is reachable");
+            ensure!(!seen[free as usize], "free node {free} is reachable or listed twice");
+            seen[free as usize] = true;
             ensure!(
                 self.nodes[free as usize].level == FREE_LEVEL,
                 "free node {free} is not marked free"
