@@ -63,8 +63,8 @@ pub mod query;
 pub mod scene;
 pub mod tree;
 
-pub use geometry::{Aabb, Frustum, HalfSpace, MAX_COORD, Ray, SpatialError};
-pub use query::{QueryWorkspace, oracle};
+pub use geometry::{Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, Ray, SpatialError};
+pub use query::{CullMode, QueryWorkspace, oracle};
 pub use tree::{
     InvariantViolation, MaintenanceStats, MoveKind, ProxyId, QueryStats, RTree, TreeSettings,
 };

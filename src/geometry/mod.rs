@@ -4,10 +4,12 @@
 mod aabb;
 mod error;
 mod frustum;
+mod frustum_sat;
 pub(crate) mod predicates;
 mod ray;
 
 pub use aabb::{Aabb, MAX_COORD};
 pub use error::SpatialError;
 pub use frustum::{Frustum, HalfSpace};
+pub use frustum_sat::FrustumSat;
 pub use ray::Ray;

@@ -78,19 +78,53 @@ pub(crate) fn ray_box_entry(
     if lo <= hi { Some(lo) } else { None }
 }
 
-/// The conservative frustum test of S7 on one box.
+/// `dot(n, p - eye) + offset`, with the association order fixed, so that the
+/// tree's lane tests and this scalar code compute bit-identical values.
+#[inline(always)]
+pub(crate) fn plane_value(normal: Vec3, offset: f32, eye: Vec3, p: Vec3) -> f32 {
+    normal.x * (p.x - eye.x) + normal.y * (p.y - eye.y) + normal.z * (p.z - eye.z) + offset
+}
+
+/// The conservative frustum test of S7 on one box: for every active plane,
+/// the box corner furthest along the normal is strictly inside.
 #[inline]
 pub(crate) fn frustum_conservative(frustum: &Frustum, aabb: &Aabb) -> bool {
     let eye = frustum.eye();
-    let rel_min = aabb.min - eye;
-    let rel_max = aabb.max - eye;
     frustum.planes().iter().all(|plane| {
         if plane.is_inactive() {
             return true;
         }
-        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), rel_max, rel_min);
-        plane.normal.dot(p) + plane.offset > 0.0
+        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), aabb.max, aabb.min);
+        plane_value(plane.normal, plane.offset, eye, p) > 0.0
     })
+}
+
+/// Whether the box lies strictly inside every active plane: its corner
+/// *nearest* along each normal is inside. Such a box is visible in both modes.
+#[inline]
+pub(crate) fn frustum_contains(frustum: &Frustum, aabb: &Aabb) -> bool {
+    let eye = frustum.eye();
+    frustum.planes().iter().all(|plane| {
+        if plane.is_inactive() {
+            return true;
+        }
+        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), aabb.min, aabb.max);
+        plane_value(plane.normal, plane.offset, eye, p) > 0.0
+    })
+}
+
+/// The exact frustum test of S7: conservative, and then either contained in
+/// every plane or not separated on any of the remaining axes of the
+/// separating-axis theorem (box edges crossed with frustum edges), in `f64`.
+#[inline]
+pub(crate) fn frustum_exact(frustum: &Frustum, sat: &super::FrustumSat, aabb: &Aabb) -> bool {
+    frustum_conservative(frustum, aabb) && frustum_exact_rest(frustum, sat, aabb)
+}
+
+/// The part of [`frustum_exact`] that follows the conservative test.
+#[inline]
+pub(crate) fn frustum_exact_rest(frustum: &Frustum, sat: &super::FrustumSat, aabb: &Aabb) -> bool {
+    frustum_contains(frustum, aabb) || !sat.separates(aabb)
 }
 
 /// Squared Euclidean distance between two closed boxes, in `f64` (S8).

@@ -6,8 +6,10 @@
 //! Traversal state lives in a reusable [`QueryWorkspace`], so queries run
 //! every frame do not allocate.
 
+mod frustum;
 pub mod oracle;
 mod overlap;
 mod workspace;
 
+pub use frustum::{CullMode, FRUSTUMS_PER_PASS};
 pub use workspace::QueryWorkspace;

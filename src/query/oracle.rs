@@ -6,8 +6,9 @@
 
 use glam::Vec3;
 
-use crate::geometry::Aabb;
 use crate::geometry::predicates;
+use crate::geometry::{Aabb, Frustum, FrustumSat};
+use crate::query::CullMode;
 
 /// A flat list of entries answering every query by testing all of them.
 ///
@@ -77,5 +78,21 @@ impl<K: Copy + Ord> BruteForce<K> {
             min: point,
             max: point,
         })
+    }
+
+    /// Sorted keys of entries visible in `frustum` under `mode`.
+    pub fn visible(&self, frustum: &Frustum, mode: CullMode) -> Vec<K> {
+        let sat = FrustumSat::new(frustum);
+        let mut out: Vec<K> = self
+            .entries
+            .iter()
+            .filter(|(_, aabb)| match mode {
+                CullMode::Conservative => predicates::frustum_conservative(frustum, aabb),
+                CullMode::Exact => predicates::frustum_exact(frustum, &sat, aabb),
+            })
+            .map(|(key, _)| *key)
+            .collect();
+        out.sort_unstable();
+        out
     }
 }

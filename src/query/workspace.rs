@@ -28,6 +28,8 @@ use crate::tree::QueryStats;
 pub struct QueryWorkspace {
     /// Depth-first traversal stack of node indices; grows, never drops work.
     pub(crate) stack: Vec<u32>,
+    /// Frustum traversal stack: node index and per-view plane masks.
+    pub(crate) cull_stack: Vec<(u32, u64)>,
     pub(crate) stats: QueryStats,
 }
 

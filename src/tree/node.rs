@@ -112,7 +112,8 @@ impl<const W: usize> Node<W> {
         for axis in 0..3 {
             let centre = |lane: usize| self.min[axis][lane] + self.max[axis][lane];
             let mut lanes: [u8; W] = std::array::from_fn(|i| i as u8);
-            lanes[..len].sort_unstable_by(|&a, &b| centre(a as usize).total_cmp(&centre(b as usize)));
+            lanes[..len]
+                .sort_unstable_by(|&a, &b| centre(a as usize).total_cmp(&centre(b as usize)));
             self.order[axis] = lanes;
         }
     }

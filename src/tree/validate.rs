@@ -81,7 +81,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     let mut lanes: Vec<u8> = order[..len].to_vec();
                     lanes.sort_unstable();
                     let permutation = lanes.iter().enumerate().all(|(i, &l)| i == l as usize);
-                    ensure!(permutation, "node {index} order on axis {axis} is not a permutation of its lanes");
+                    ensure!(
+                        permutation,
+                        "node {index} order on axis {axis} is not a permutation of its lanes"
+                    );
                 }
             }
             for lane in len..W {
@@ -152,7 +155,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             "proxy free list and live proxies do not add up"
         );
         for &free in &self.free_nodes {
-            ensure!(!seen[free as usize], "free node {free} is reachable or listed twice");
+            ensure!(
+                !seen[free as usize],
+                "free node {free} is reachable or listed twice"
+            );
             seen[free as usize] = true;
             ensure!(
                 self.nodes[free as usize].level == FREE_LEVEL,

@@ -1,0 +1,241 @@
+//! The exact frustum test's precomputation: the frustum's vertices and
+//! unbounded directions in `f64`, projected once onto every separating axis
+//! that its planes alone do not cover.
+
+use glam::DVec3;
+
+use super::{Aabb, Frustum};
+
+/// At most 3 box axes plus 15 plane-pair edges times 3 box axes.
+const MAX_AXES: usize = 48;
+
+/// A frustum prepared for exact box tests (SEMANTICS S7, exact mode).
+///
+/// Axes: the three box face normals, and each box edge direction crossed
+/// with each frustum edge direction (every pair of plane normals, crossed).
+/// Extra axes never cause a false separation, so taking all plane pairs is
+/// safe. The frustum's own planes are the conservative test's job.
+/// Everything is relative to the eye and in `f64`; where a projection is
+/// uncertain, the interval is widened, so rounding can only keep a box.
+#[derive(Clone, Debug)]
+pub struct FrustumSat {
+    eye: DVec3,
+    axes: [DVec3; MAX_AXES],
+    lo: [f64; MAX_AXES],
+    hi: [f64; MAX_AXES],
+    count: usize,
+    /// The open volume is empty (or flat): nothing is visible in exact mode.
+    empty: bool,
+}
+
+impl FrustumSat {
+    /// Prepares `frustum` (a few microseconds; do it once per query).
+    pub fn new(frustum: &Frustum) -> FrustumSat {
+        let planes: Vec<(DVec3, f64)> = frustum
+            .planes()
+            .iter()
+            .filter(|p| !p.is_inactive())
+            .map(|p| (p.normal.as_dvec3(), p.offset as f64))
+            .collect();
+        let (vertices, rays) = polytope(&planes);
+        let mut sat = FrustumSat {
+            eye: frustum.eye().as_dvec3(),
+            axes: [DVec3::ZERO; MAX_AXES],
+            lo: [f64::NEG_INFINITY; MAX_AXES],
+            hi: [f64::INFINITY; MAX_AXES],
+            count: 0,
+            empty: !has_interior(&planes),
+        };
+        if sat.empty || vertices.is_empty() {
+            // Degenerate (empty or flat) volume: leave it to the planes.
+            return sat;
+        }
+        let mut candidate_axes: Vec<DVec3> = vec![DVec3::X, DVec3::Y, DVec3::Z];
+        for i in 0..planes.len() {
+            for j in i + 1..planes.len() {
+                let edge = planes[i].0.cross(planes[j].0);
+                if edge.length_squared()
+                    < 1e-20 * planes[i].0.length_squared() * planes[j].0.length_squared()
+                {
+                    continue;
+                }
+                for b in [DVec3::X, DVec3::Y, DVec3::Z] {
+                    let axis = b.cross(edge);
+                    if axis.length_squared() > 1e-24 * edge.length_squared() {
+                        candidate_axes.push(axis);
+                    }
+                }
+            }
+        }
+        for axis in candidate_axes.into_iter().take(MAX_AXES) {
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for v in &vertices {
+                let d = axis.dot(*v);
+                lo = lo.min(d);
+                hi = hi.max(d);
+            }
+            // Widen by a relative tolerance, and to infinity along every
+            // unbounded direction the axis does not see as exactly flat.
+            let scale = vertices
+                .iter()
+                .map(|v| v.abs().max_element())
+                .fold(0.0, f64::max)
+                * axis.length();
+            lo -= 1e-9 * scale;
+            hi += 1e-9 * scale;
+            for r in &rays {
+                let d = axis.dot(*r);
+                let tol = 1e-9 * axis.length() * r.length();
+                if d > -tol {
+                    hi = f64::INFINITY;
+                }
+                if d < tol {
+                    lo = f64::NEG_INFINITY;
+                }
+            }
+            sat.axes[sat.count] = axis;
+            sat.lo[sat.count] = lo;
+            sat.hi[sat.count] = hi;
+            sat.count += 1;
+        }
+        sat
+    }
+
+    /// Whether one of the prepared axes separates the box from the frustum.
+    pub(crate) fn separates(&self, aabb: &Aabb) -> bool {
+        if self.empty {
+            return true;
+        }
+        let min = aabb.min.as_dvec3() - self.eye;
+        let max = aabb.max.as_dvec3() - self.eye;
+        let centre = (min + max) * 0.5;
+        let half = (max - min) * 0.5;
+        (0..self.count).any(|i| {
+            let axis = self.axes[i];
+            let c = axis.dot(centre);
+            let r = axis.abs().dot(half);
+            c + r < self.lo[i] || c - r > self.hi[i]
+        })
+    }
+}
+
+/// The vertices (intersections of three planes inside all others) and the
+/// unbounded directions (intersections of two planes inside all others) of
+/// `{x : n·x + d > 0 for every plane}`, relative to the eye.
+fn polytope(planes: &[(DVec3, f64)]) -> (Vec<DVec3>, Vec<DVec3>) {
+    let inside = |x: DVec3, skip: &[usize]| {
+        planes.iter().enumerate().all(|(k, (n, d))| {
+            skip.contains(&k) || n.dot(x) + d >= -1e-9 * (n.length() * x.length() + d.abs() + 1.0)
+        })
+    };
+    let mut vertices = Vec::new();
+    for i in 0..planes.len() {
+        for j in i + 1..planes.len() {
+            for k in j + 1..planes.len() {
+                let (a, b, c) = (planes[i], planes[j], planes[k]);
+                let det = a.0.dot(b.0.cross(c.0));
+                if det.abs() < 1e-12 * a.0.length() * b.0.length() * c.0.length() {
+                    continue;
+                }
+                // Solve n·x = -d for the three planes (Cramer's rule).
+                let x =
+                    (b.0.cross(c.0) * -a.1 + c.0.cross(a.0) * -b.1 + a.0.cross(b.0) * -c.1) / det;
+                if x.is_finite() && inside(x, &[i, j, k]) {
+                    vertices.push(x);
+                }
+            }
+        }
+    }
+    let mut rays = Vec::new();
+    for i in 0..planes.len() {
+        for j in i + 1..planes.len() {
+            let r = planes[i].0.cross(planes[j].0);
+            if r.length_squared() == 0.0 {
+                continue;
+            }
+            for dir in [r, -r] {
+                let ok = planes
+                    .iter()
+                    .all(|(n, _)| n.dot(dir) >= -1e-9 * n.length() * dir.length());
+                if ok {
+                    rays.push(dir);
+                }
+            }
+        }
+    }
+    (vertices, rays)
+}
+
+/// Whether `{x : n·x + d > 0 for every plane}` has an interior: the largest
+/// ball inside all planes (a 4-variable linear programme, maximise the
+/// radius `t`) has a positive radius. Solved by trying every vertex of the
+/// programme, which is cheap for at most six planes plus bounds.
+fn has_interior(planes: &[(DVec3, f64)]) -> bool {
+    // Rows a·(x, t) <= b. Plane: -n̂·x + t <= d̂. Bounds keep it finite.
+    const R: f64 = 1e16;
+    let mut rows: Vec<([f64; 4], f64)> = Vec::new();
+    for (n, d) in planes {
+        let len = n.length();
+        rows.push(([-n.x / len, -n.y / len, -n.z / len, 1.0], d / len));
+    }
+    for axis in 0..3 {
+        let mut a = [0.0; 4];
+        a[axis] = 1.0;
+        rows.push((a, R));
+        a[axis] = -1.0;
+        rows.push((a, R));
+    }
+    rows.push(([0.0, 0.0, 0.0, 1.0], 1.0));
+    let scale = planes
+        .iter()
+        .map(|(n, d)| d.abs() / n.length())
+        .fold(1.0, f64::max);
+    let mut best = f64::NEG_INFINITY;
+    let m = rows.len();
+    for i in 0..m {
+        for j in i + 1..m {
+            for k in j + 1..m {
+                for l in k + 1..m {
+                    let Some(x) = solve4([rows[i], rows[j], rows[k], rows[l]]) else {
+                        continue;
+                    };
+                    let feasible = rows.iter().all(|(a, b)| {
+                        a[0] * x[0] + a[1] * x[1] + a[2] * x[2] + a[3] * x[3]
+                            <= b + 1e-9 * (b.abs() + scale)
+                    });
+                    if feasible && x[3] > best {
+                        best = x[3];
+                    }
+                }
+            }
+        }
+    }
+    best > 1e-9 * scale
+}
+
+/// Solves the 4x4 system `a x = b` by Gaussian elimination with pivoting.
+fn solve4(rows: [([f64; 4], f64); 4]) -> Option<[f64; 4]> {
+    let mut m: [[f64; 5]; 4] = rows.map(|(a, b)| [a[0], a[1], a[2], a[3], b]);
+    for col in 0..4 {
+        let pivot = (col..4).max_by(|&r, &s| m[r][col].abs().total_cmp(&m[s][col].abs()))?;
+        if m[pivot][col].abs() < 1e-12 {
+            return None;
+        }
+        m.swap(col, pivot);
+        for r in 0..4 {
+            if r != col {
+                let f = m[r][col] / m[col][col];
+                for c in col..5 {
+                    m[r][c] -= f * m[col][c];
+                }
+            }
+        }
+    }
+    let x = [
+        m[0][4] / m[0][0],
+        m[1][4] / m[1][1],
+        m[2][4] / m[2][2],
+        m[3][4] / m[3][3],
+    ];
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}

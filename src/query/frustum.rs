@@ -1,0 +1,289 @@
+//! Frustum culling: which entries are visible from one or several views.
+//!
+//! One traversal serves up to eight frustums. For each frustum a node carries
+//! the mask of planes its parent was not yet fully inside; a child that is
+//! fully inside a plane drops it, and a child inside all planes has its whole
+//! subtree emitted without further tests. Leaf entries get the cheap
+//! one-corner "outside?" test for the planes that remain.
+
+use std::ops::ControlFlow;
+
+use glam::Vec3;
+
+use super::QueryWorkspace;
+use crate::geometry::predicates::{frustum_exact_rest, plane_value};
+use crate::geometry::{Frustum, FrustumSat};
+use crate::tree::RTree;
+use crate::tree::node::Node;
+
+/// How a frustum decides that a box is visible (SEMANTICS S7).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum CullMode {
+    /// Visible iff the box's furthest corner along every plane normal is
+    /// strictly inside (Bevy's convention). Cheap; a large box near a frustum
+    /// edge can pass every plane and still lie outside (a false positive).
+    #[default]
+    Conservative,
+    /// Conservative, and then no separating axis between box and frustum
+    /// (box edges crossed with frustum edges, in `f64`). No false positives
+    /// beyond rounding; costs a few dozen dot products per boundary entry.
+    Exact,
+}
+
+/// Frustums one traversal can carry (one byte of plane mask each).
+pub const FRUSTUMS_PER_PASS: usize = 8;
+
+/// Bit set in a frustum's mask byte while the frustum still sees the subtree.
+const ALIVE: u64 = 0x80;
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Calls `visit(view, key, exact_box)` for every entry visible in
+    /// `frustums[view]`, all views in one traversal per eight, in tree order.
+    /// Stops when `visit` breaks.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, CullMode, Frustum, QueryWorkspace, RTree};
+    /// use glam::{Quat, Vec3};
+    /// use std::ops::ControlFlow;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(1u32, Aabb::new(Vec3::new(-1.0, -1.0, -11.0), Vec3::new(1.0, 1.0, -9.0))?)?;
+    /// tree.insert(2u32, Aabb::new(Vec3::new(-1.0, -1.0, 9.0), Vec3::new(1.0, 1.0, 11.0))?)?;
+    /// let fov = 60f32.to_radians();
+    /// let front = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, fov, 1.0, 0.1, 100.0)?;
+    /// let back = Frustum::perspective(Vec3::ZERO, Quat::from_rotation_y(std::f32::consts::PI), fov, 1.0, 0.1, 100.0)?;
+    ///
+    /// let mut seen = vec![Vec::new(), Vec::new()];
+    /// tree.visit_visible(&[front, back], CullMode::Conservative, &mut QueryWorkspace::default(), |view, key, _| {
+    ///     seen[view].push(key);
+    ///     ControlFlow::Continue(())
+    /// });
+    /// assert_eq!(seen, [vec![1], vec![2]]);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn visit_visible<F>(
+        &self,
+        frustums: &[Frustum],
+        mode: CullMode,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) where
+        F: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
+        for (chunk, views) in frustums.chunks(FRUSTUMS_PER_PASS).enumerate() {
+            let first_view = chunk * FRUSTUMS_PER_PASS;
+            let prepared: Vec<PreparedView> =
+                views.iter().map(|f| PreparedView::new(f, mode)).collect();
+            let flow = self.cull_pass(&prepared, ws, &mut |view, key, aabb| {
+                visit(first_view + view, key, aabb)
+            });
+            if flow.is_break() {
+                return;
+            }
+        }
+    }
+
+    /// Appends the keys visible in each frustum to the matching list of `out`
+    /// (`out.len()` must equal `frustums.len()`; lists are not cleared), in
+    /// tree order. One traversal per eight frustums.
+    pub fn visible_into(
+        &self,
+        frustums: &[Frustum],
+        mode: CullMode,
+        ws: &mut QueryWorkspace,
+        out: &mut [Vec<K>],
+    ) {
+        assert_eq!(frustums.len(), out.len(), "one output list per frustum");
+        self.visit_visible(frustums, mode, ws, |view, key, _| {
+            out[view].push(key);
+            ControlFlow::Continue(())
+        });
+    }
+
+    /// The keys visible in one frustum, sorted.
+    pub fn visible(&self, frustum: &Frustum, mode: CullMode) -> Vec<K> {
+        let mut out = [Vec::new()];
+        self.visible_into(
+            std::slice::from_ref(frustum),
+            mode,
+            &mut QueryWorkspace::default(),
+            &mut out,
+        );
+        let [mut keys] = out;
+        keys.sort_unstable();
+        keys
+    }
+
+    /// One traversal for up to eight views.
+    fn cull_pass(
+        &self,
+        views: &[PreparedView],
+        ws: &mut QueryWorkspace,
+        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        let mut start_mask = 0u64;
+        for (v, view) in views.iter().enumerate() {
+            start_mask |= (ALIVE | view.active_planes as u64) << (8 * v);
+        }
+        if start_mask == 0 {
+            return ControlFlow::Continue(());
+        }
+        ws.cull_stack.clear();
+        ws.cull_stack.push((self.root(), start_mask));
+        while let Some((index, mask)) = ws.cull_stack.pop() {
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            let used = if W == 32 {
+                u32::MAX
+            } else {
+                (1u32 << node.len()) - 1
+            };
+            let mut lane_masks = [0u64; W];
+            let mut tested = false;
+            for (v, view) in views.iter().enumerate() {
+                let byte = (mask >> (8 * v)) & 0xFF;
+                if byte & ALIVE == 0 {
+                    continue;
+                }
+                let planes = (byte & 0x3F) as u8;
+                if planes == 0 {
+                    for (lane, m) in lane_masks.iter_mut().enumerate() {
+                        if used & (1 << lane) != 0 {
+                            *m |= ALIVE << (8 * v);
+                        }
+                    }
+                    continue;
+                }
+                tested = true;
+                let (alive, remaining) = view.test_lanes(node, planes);
+                let mut alive = alive & used;
+                while alive != 0 {
+                    let lane = alive.trailing_zeros() as usize;
+                    alive &= alive - 1;
+                    lane_masks[lane] |= (ALIVE | remaining[lane] as u64) << (8 * v);
+                }
+            }
+            if node.is_leaf() {
+                if tested {
+                    ws.stats.entries_tested += node.len() as u64;
+                }
+                for (lane, &lane_mask) in lane_masks.iter().enumerate().take(node.len()) {
+                    if lane_mask == 0 {
+                        continue;
+                    }
+                    let aabb = node.lane_box(lane);
+                    let key = self.key_of(node.child[lane]);
+                    for (v, view) in views.iter().enumerate() {
+                        let byte = (lane_mask >> (8 * v)) & 0xFF;
+                        if byte & ALIVE == 0 {
+                            continue;
+                        }
+                        if byte & 0x3F != 0 && !view.exact_rest(&aabb) {
+                            continue;
+                        }
+                        visit(v, key, &aabb)?;
+                    }
+                }
+            } else {
+                for (lane, &lane_mask) in lane_masks.iter().enumerate() {
+                    if lane_mask != 0 {
+                        ws.cull_stack.push((node.child[lane], lane_mask));
+                    }
+                }
+            }
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+/// A frustum ready for lane tests: active planes and, in exact mode, the
+/// separating-axis precomputation.
+struct PreparedView {
+    frustum: Frustum,
+    active_planes: u8,
+    sat: Option<FrustumSat>,
+}
+
+impl PreparedView {
+    fn new(frustum: &Frustum, mode: CullMode) -> PreparedView {
+        let mut active_planes = 0u8;
+        for (i, plane) in frustum.planes().iter().enumerate() {
+            if !plane.is_inactive() {
+                active_planes |= 1 << i;
+            }
+        }
+        let sat = (mode == CullMode::Exact).then(|| FrustumSat::new(frustum));
+        PreparedView {
+            frustum: *frustum,
+            active_planes,
+            sat,
+        }
+    }
+
+    /// For the planes in `planes`: the lanes not outside any of them, and per
+    /// lane the planes it is not yet fully inside.
+    #[inline]
+    fn test_lanes<const W: usize>(&self, node: &Node<W>, planes: u8) -> (u32, [u8; W]) {
+        let eye = self.frustum.eye();
+        let mut alive = u32::MAX;
+        let mut remaining = [planes; W];
+        let mut bits = planes;
+        while bits != 0 {
+            let p = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let plane = self.frustum.planes()[p];
+            let n = plane.normal;
+            // The p-vertex reads max where n >= 0, the n-vertex the other.
+            let (px, nx) = if n.x >= 0.0 {
+                (&node.max[0], &node.min[0])
+            } else {
+                (&node.min[0], &node.max[0])
+            };
+            let (py, ny) = if n.y >= 0.0 {
+                (&node.max[1], &node.min[1])
+            } else {
+                (&node.min[1], &node.max[1])
+            };
+            let (pz, nz) = if n.z >= 0.0 {
+                (&node.max[2], &node.min[2])
+            } else {
+                (&node.min[2], &node.max[2])
+            };
+            let mut outside_free = 0u32;
+            let mut inside = 0u32;
+            for lane in 0..W {
+                let far = plane_value(
+                    n,
+                    plane.offset,
+                    eye,
+                    Vec3::new(px[lane], py[lane], pz[lane]),
+                );
+                let near = plane_value(
+                    n,
+                    plane.offset,
+                    eye,
+                    Vec3::new(nx[lane], ny[lane], nz[lane]),
+                );
+                outside_free |= ((far > 0.0) as u32) << lane;
+                inside |= ((near > 0.0) as u32) << lane;
+            }
+            alive &= outside_free;
+            let mut inside_lanes = inside;
+            while inside_lanes != 0 {
+                let lane = inside_lanes.trailing_zeros() as usize;
+                inside_lanes &= inside_lanes - 1;
+                remaining[lane] &= !(1u8 << p);
+            }
+        }
+        (alive, remaining)
+    }
+
+    /// The exact mode's extra test for an entry that passed the planes.
+    #[inline]
+    fn exact_rest(&self, aabb: &crate::Aabb) -> bool {
+        match &self.sat {
+            Some(sat) => frustum_exact_rest(&self.frustum, sat, aabb),
+            None => true,
+        }
+    }
+}

@@ -1,0 +1,329 @@
+//! Frustum culling against the oracle: random scenes and views, and the
+//! frustum hard cases of SEMANTICS.md.
+
+mod common;
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::{Aabb, CullMode, Frustum, HalfSpace, QueryWorkspace, RTree, SpatialError};
+use glam::{EulerRot, Quat, Vec3};
+use proptest::prelude::*;
+
+fn perspective() -> impl Strategy<Value = Frustum> {
+    (
+        common::grid_point(),
+        0.0f32..std::f32::consts::TAU,
+        -1.4f32..1.4,
+        20f32..120.0,
+        0.5f32..2.0,
+        0.05f32..2.0,
+        prop_oneof![3 => (1.0f32..30.0).prop_map(Some), 1 => Just(None)],
+    )
+        .prop_map(|(eye, yaw, pitch, fov, aspect, near, far)| {
+            let rotation = Quat::from_euler(EulerRot::YXZ, yaw, pitch, 0.0);
+            let far = far.map_or(f32::INFINITY, |f| near + f);
+            Frustum::perspective(eye, rotation, fov.to_radians(), aspect, near, far).unwrap()
+        })
+}
+
+/// Arbitrary half-space sets on the grid: possibly empty, unbounded or flat.
+fn half_spaces() -> impl Strategy<Value = Frustum> {
+    let plane = prop_oneof![
+        4 => (-2i32..=2, -2i32..=2, -2i32..=2, -16i32..=16).prop_map(|(x, y, z, d)| {
+            let normal = Vec3::new(x as f32, y as f32, z as f32);
+            if normal == Vec3::ZERO { HalfSpace::INACTIVE } else { HalfSpace { normal, offset: d as f32 * 0.5 } }
+        }),
+        1 => Just(HalfSpace::INACTIVE),
+    ];
+    (common::grid_point(), prop::array::uniform6(plane))
+        .prop_map(|(eye, planes)| Frustum::new(eye, planes).unwrap())
+}
+
+fn build(boxes: &[Aabb]) -> (RTree<u32, 4>, BruteForce<u32>) {
+    let mut tree = RTree::<u32, 4>::with_settings(Default::default()).unwrap();
+    let mut oracle = BruteForce::default();
+    for (i, b) in boxes.iter().enumerate() {
+        tree.insert(i as u32, *b).unwrap();
+        oracle.insert(i as u32, *b);
+    }
+    (tree, oracle)
+}
+
+fn check_views(tree: &RTree<u32, 4>, oracle: &BruteForce<u32>, views: &[Frustum]) {
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let mut out = vec![Vec::new(); views.len()];
+        tree.visible_into(views, mode, &mut QueryWorkspace::default(), &mut out);
+        for (view, keys) in views.iter().zip(out.iter_mut()) {
+            keys.sort_unstable();
+            assert_eq!(*keys, oracle.visible(view, mode), "{mode:?} {view:?}");
+        }
+    }
+    // Exact mode only ever removes entries from the conservative answer.
+    for view in views {
+        let exact = oracle.visible(view, CullMode::Exact);
+        let conservative = oracle.visible(view, CullMode::Conservative);
+        assert!(exact.iter().all(|k| conservative.binary_search(k).is_ok()));
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn perspective_views_match_the_oracle(
+        boxes in prop::collection::vec(common::grid_box(), 0..300),
+        views in prop::collection::vec(perspective(), 1..11),
+    ) {
+        let (tree, oracle) = build(&boxes);
+        check_views(&tree, &oracle, &views);
+    }
+
+    #[test]
+    fn arbitrary_half_spaces_match_the_oracle(
+        boxes in prop::collection::vec(common::grid_box(), 0..300),
+        views in prop::collection::vec(half_spaces(), 1..4),
+    ) {
+        let (tree, oracle) = build(&boxes);
+        check_views(&tree, &oracle, &views);
+    }
+}
+
+/// The unit-box world plus 1,000 distractors, so pruning is exercised.
+fn with_distractors(special: &[Aabb]) -> (RTree<u32, 4>, BruteForce<u32>) {
+    let mut rng = bevy_rtree::scene::SceneRng::new(9);
+    let mut boxes = special.to_vec();
+    for _ in 0..1_000 {
+        let c = Vec3::new(
+            rng.range(-50.0, 50.0),
+            rng.range(-50.0, 50.0),
+            rng.range(-50.0, 50.0),
+        );
+        boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
+    }
+    build(&boxes)
+}
+
+fn x_slab(eye: Vec3, offset: f32) -> Frustum {
+    // Inside iff x - eye.x + offset > 0, i.e. x > eye.x - offset.
+    let plane = HalfSpace {
+        normal: Vec3::X,
+        offset,
+    };
+    Frustum::new(
+        eye,
+        [
+            plane,
+            HalfSpace::INACTIVE,
+            HalfSpace::INACTIVE,
+            HalfSpace::INACTIVE,
+            HalfSpace::INACTIVE,
+            HalfSpace::INACTIVE,
+        ],
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_face_on_the_plane_from_outside_is_culled_and_one_ulp_inside_is_visible() {
+    let on_plane = common::aabb([-3.0, 0.0, 0.0], [5.0, 1.0, 1.0]);
+    let ulp_inside = common::aabb([-3.0, 0.0, 0.0], [5f32.next_up(), 1.0, 1.0]);
+    let (tree, oracle) = with_distractors(&[on_plane, ulp_inside]);
+    // Inside iff x > 5.
+    let view = x_slab(Vec3::ZERO, -5.0);
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let visible = tree.visible(&view, mode);
+        assert!(!visible.contains(&0), "touching from outside is culled");
+        assert!(visible.contains(&1), "one ulp inside is visible");
+        assert_eq!(visible, oracle.visible(&view, mode));
+    }
+}
+
+#[test]
+fn the_conservative_false_positive_and_its_removal_in_exact_mode() {
+    // Looking down -z, 90 degree fov, square: inside iff |x|, |y| < -z and
+    // 1 < -z < 10. The box lies beyond the far corner: every plane alone has
+    // a corner of it inside, yet no point of it is inside all planes.
+    let frustum = Frustum::perspective(
+        Vec3::ZERO,
+        Quat::IDENTITY,
+        90f32.to_radians(),
+        1.0,
+        1.0,
+        10.0,
+    )
+    .unwrap();
+    let outside = common::aabb([12.0, 12.0, -30.0], [30.0, 30.0, -8.0]);
+    let inside = common::aabb([-1.0, -1.0, -5.0], [1.0, 1.0, -4.0]);
+    let (tree, oracle) = with_distractors(&[outside, inside]);
+    let conservative = tree.visible(&frustum, CullMode::Conservative);
+    let exact = tree.visible(&frustum, CullMode::Exact);
+    assert!(conservative.contains(&0), "the documented false positive");
+    assert!(!exact.contains(&0), "exact mode removes it");
+    assert!(exact.contains(&1) && conservative.contains(&1));
+    assert_eq!(
+        conservative,
+        oracle.visible(&frustum, CullMode::Conservative)
+    );
+    assert_eq!(exact, oracle.visible(&frustum, CullMode::Exact));
+    // Geometric truth: no sample of the box is inside the frustum.
+    let inside_frustum =
+        |p: Vec3| p.x.abs() < -p.z && p.y.abs() < -p.z && -p.z > 1.0 && -p.z < 10.0;
+    for i in 0..=20 {
+        for j in 0..=20 {
+            for k in 0..=20 {
+                let t = Vec3::new(i as f32, j as f32, k as f32) / 20.0;
+                assert!(!inside_frustum(
+                    outside.min + (outside.max - outside.min) * t
+                ));
+            }
+        }
+    }
+}
+
+#[test]
+fn a_zero_thickness_frustum_has_only_conservative_false_positives() {
+    let near = HalfSpace {
+        normal: Vec3::NEG_Z,
+        offset: -5.0,
+    };
+    let far = HalfSpace {
+        normal: Vec3::Z,
+        offset: 5.0,
+    };
+    let i = HalfSpace::INACTIVE;
+    let flat = Frustum::new(Vec3::ZERO, [near, far, i, i, i, i]).unwrap();
+    let straddling = common::aabb([-1.0, -1.0, -6.0], [1.0, 1.0, -4.0]);
+    let (tree, oracle) = with_distractors(&[straddling]);
+    // Each plane alone has a corner of the straddling box inside, so the
+    // conservative test passes it; the open volume is empty, so exact mode
+    // sees nothing at all.
+    let conservative = tree.visible(&flat, CullMode::Conservative);
+    assert!(conservative.contains(&0));
+    assert_eq!(conservative, oracle.visible(&flat, CullMode::Conservative));
+    assert!(tree.visible(&flat, CullMode::Exact).is_empty());
+    assert!(oracle.visible(&flat, CullMode::Exact).is_empty());
+}
+
+#[test]
+fn an_inactive_far_plane_sees_boxes_at_1e14_metres() {
+    let frustum = Frustum::perspective(
+        Vec3::ZERO,
+        Quat::IDENTITY,
+        60f32.to_radians(),
+        1.0,
+        0.1,
+        f32::INFINITY,
+    )
+    .unwrap();
+    assert!(frustum.planes()[5].is_inactive());
+    let far_ahead = common::aabb([-1e12, -1e12, -1.01e14], [1e12, 1e12, -1e14]);
+    let far_behind = common::aabb([-1e12, -1e12, 1e14], [1e12, 1e12, 1.01e14]);
+    let (tree, oracle) = with_distractors(&[far_ahead, far_behind]);
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let visible = tree.visible(&frustum, mode);
+        assert!(visible.contains(&0) && !visible.contains(&1), "{mode:?}");
+        assert_eq!(visible, oracle.visible(&frustum, mode));
+    }
+}
+
+#[test]
+fn nan_and_zero_normal_planes_are_refused() {
+    let i = HalfSpace::INACTIVE;
+    let nan = HalfSpace {
+        normal: Vec3::new(f32::NAN, 0.0, 1.0),
+        offset: 0.0,
+    };
+    let nan_offset = HalfSpace {
+        normal: Vec3::Z,
+        offset: f32::NAN,
+    };
+    let zero_normal = HalfSpace {
+        normal: Vec3::ZERO,
+        offset: 1.0,
+    };
+    let inf_offset = HalfSpace {
+        normal: Vec3::Z,
+        offset: f32::INFINITY,
+    };
+    for bad in [nan, nan_offset, zero_normal, inf_offset] {
+        assert_eq!(
+            Frustum::new(Vec3::ZERO, [bad, i, i, i, i, i]),
+            Err(SpatialError::InvalidFrustum)
+        );
+    }
+    assert_eq!(
+        Frustum::new(Vec3::NAN, [i; 6]),
+        Err(SpatialError::InvalidFrustum)
+    );
+    assert_eq!(
+        Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, f32::NAN, 1.0, 0.1, 10.0),
+        Err(SpatialError::InvalidFrustum)
+    );
+}
+
+#[test]
+fn a_one_centimetre_box_two_centimetres_inside_stays_visible_a_million_metres_out() {
+    // The camera sits a million metres from the origin and looks along +x.
+    let eye = Vec3::new(1e6, 0.0, 0.0);
+    let look_x = Quat::from_rotation_y(-std::f32::consts::FRAC_PI_2);
+    let frustum = Frustum::perspective(eye, look_x, 60f32.to_radians(), 1.0, 0.1, 500.0).unwrap();
+    // Ten metres ahead the top plane is at y = 10 * tan(30 deg).
+    let edge = 10.0 * 30f32.to_radians().tan();
+    let inside = common::aabb(
+        [1e6 + 10.0, edge - 0.03, -0.005],
+        [1e6 + 10.0, edge - 0.02, 0.005],
+    );
+    let outside = common::aabb(
+        [1e6 + 10.0, edge + 0.02, -0.005],
+        [1e6 + 10.0, edge + 0.03, 0.005],
+    );
+    let mut tree = RTree::new();
+    let mut oracle = BruteForce::default();
+    for (i, b) in [inside, outside].into_iter().enumerate() {
+        tree.insert(i as u32, b).unwrap();
+        oracle.insert(i as u32, b);
+    }
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        assert_eq!(tree.visible(&frustum, mode), vec![0], "{mode:?}");
+        assert_eq!(oracle.visible(&frustum, mode), vec![0]);
+    }
+}
+
+#[test]
+fn many_views_in_one_traversal_match_single_views() {
+    let scene = bevy_rtree::scene::TownScene::new(20_000, 3);
+    let mut tree = RTree::new();
+    tree.insert_bulk(
+        scene
+            .boxes()
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (i as u32, *b)),
+    )
+    .unwrap();
+    let views: Vec<Frustum> = (0..11)
+        .map(|i| {
+            let rotation = Quat::from_euler(EulerRot::YXZ, i as f32 * 0.6, -0.2, 0.0);
+            Frustum::perspective(
+                Vec3::new(1000.0, 50.0, 1000.0),
+                rotation,
+                1.0,
+                1.7,
+                0.1,
+                300.0,
+            )
+            .unwrap()
+        })
+        .collect();
+    let mut out = vec![Vec::new(); views.len()];
+    tree.visible_into(
+        &views,
+        CullMode::Conservative,
+        &mut QueryWorkspace::default(),
+        &mut out,
+    );
+    for (view, mut keys) in views.iter().zip(out) {
+        keys.sort_unstable();
+        assert!(!keys.is_empty());
+        assert_eq!(keys, tree.visible(view, CullMode::Conservative));
+    }
+}
