@@ -9,7 +9,9 @@
 mod frustum;
 pub mod oracle;
 mod overlap;
+mod ray;
 mod workspace;
 
 pub use frustum::{CullMode, FRUSTUMS_PER_PASS};
+pub use ray::{RayHit, RayMode, RayResults};
 pub use workspace::QueryWorkspace;

@@ -7,8 +7,9 @@
 use glam::Vec3;
 
 use crate::geometry::predicates;
-use crate::geometry::{Aabb, Frustum, FrustumSat};
-use crate::query::CullMode;
+use crate::geometry::predicates::RayTest;
+use crate::geometry::{Aabb, Frustum, FrustumSat, Ray, SpatialError};
+use crate::query::{CullMode, RayHit};
 
 /// A flat list of entries answering every query by testing all of them.
 ///
@@ -94,5 +95,26 @@ impl<K: Copy + Ord> BruteForce<K> {
             .collect();
         out.sort_unstable();
         out
+    }
+
+    /// Every hit of `ray`, sorted by `(t, key)` (SEMANTICS S4, S5).
+    pub fn ray_hits(&self, ray: &Ray) -> Result<Vec<RayHit<K>>, SpatialError> {
+        let ray = ray.canonicalized()?;
+        let test = RayTest::new(&ray);
+        let mut hits: Vec<RayHit<K>> = self
+            .entries
+            .iter()
+            .filter_map(|(key, b)| {
+                predicates::ray_box_entry(&test, ray.max_t, b.min.to_array(), b.max.to_array())
+                    .map(|t| RayHit { key: *key, t })
+            })
+            .collect();
+        hits.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
+        Ok(hits)
+    }
+
+    /// The first hit of `ray`: the smallest `(t, key)`.
+    pub fn ray_first(&self, ray: &Ray) -> Result<Option<RayHit<K>>, SpatialError> {
+        Ok(self.ray_hits(ray)?.first().copied())
     }
 }

@@ -30,6 +30,10 @@ pub struct QueryWorkspace {
     pub(crate) stack: Vec<u32>,
     /// Frustum traversal stack: node index and per-view plane masks.
     pub(crate) cull_stack: Vec<(u32, u64)>,
+    /// Single-ray traversal stack: node index and its entry `t`.
+    pub(crate) ray_stack: Vec<(u32, f32)>,
+    /// Per-ray state of batched raycasts.
+    pub(crate) rays: super::ray::RayBatchScratch,
     pub(crate) stats: QueryStats,
 }
 

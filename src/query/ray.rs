@@ -1,0 +1,536 @@
+//! Raycasts: first hit, all hits and any hit, for one ray or a batch.
+//!
+//! A single ray walks the tree depth first, near children first (the node's
+//! precomputed order along the ray's dominant axis), pruning every node whose
+//! entry `t` is beyond the best hit so far. A batch follows the "batched
+//! incoherent rays" scheme: every live ray of the batch is tested against a
+//! node's lanes at once, the rays that hit a child are moved to the front of
+//! the batch, and the recursion continues with that count only, so the tree is
+//! traversed once per batch however incoherent the rays.
+
+use std::ops::{ControlFlow, Range};
+
+use super::QueryWorkspace;
+use crate::geometry::predicates::RayTest;
+use crate::geometry::{Ray, SpatialError};
+use crate::tree::RTree;
+use crate::tree::node::{NIL, Node};
+
+/// One hit: the entry's key and the ray parameter where the ray enters its
+/// box (`0` when the origin is inside or on the box).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayHit<K> {
+    /// The entry hit.
+    pub key: K,
+    /// Entry parameter, in units of `|dir|`.
+    pub t: f32,
+}
+
+/// What a raycast asks for (SEMANTICS S5).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum RayMode {
+    /// The hit with the smallest `(t, key)`.
+    #[default]
+    First,
+    /// Every hit once, sorted by `(t, key)`, cut to `limit` if given.
+    All {
+        /// Keep at most this many of the sorted hits.
+        limit: Option<usize>,
+    },
+    /// Whether anything is hit (occlusion, line of sight); no hits listed.
+    Any,
+}
+
+/// The answers of a batch: slot `i` belongs to ray `i` (SEMANTICS S6).
+#[derive(Clone, Debug, Default)]
+pub struct RayResults<K> {
+    slots: Vec<Result<(Range<u32>, bool), SpatialError>>,
+    hits: Vec<RayHit<K>>,
+}
+
+impl<K: Copy> RayResults<K> {
+    /// Number of slots (rays of the last batch).
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether the last batch was empty.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// The hits of ray `i`, sorted by `(t, key)`: at most one in
+    /// [`RayMode::First`], none in [`RayMode::Any`]. The ray's own error if it
+    /// was invalid. Panics if `i` is out of range.
+    pub fn hits(&self, i: usize) -> Result<&[RayHit<K>], SpatialError> {
+        let (range, _) = self.slots[i].as_ref().map_err(|e| *e)?;
+        Ok(&self.hits[range.start as usize..range.end as usize])
+    }
+
+    /// The first hit of ray `i` (in any mode but [`RayMode::Any`]).
+    pub fn first(&self, i: usize) -> Result<Option<RayHit<K>>, SpatialError> {
+        Ok(self.hits(i)?.first().copied())
+    }
+
+    /// Whether ray `i` hit anything (in every mode).
+    pub fn any(&self, i: usize) -> Result<bool, SpatialError> {
+        self.slots[i].as_ref().map(|(_, any)| *any).map_err(|e| *e)
+    }
+}
+
+/// Per-ray state of a batch, kept in the workspace between frames.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RayBatchScratch {
+    tests: Vec<RayTest>,
+    /// Current limit per ray: shrinks to the best `t` (first hit) or drops
+    /// below zero once the ray is done (any hit).
+    limits: Vec<f32>,
+    /// Best `(t, proxy)` per ray in first-hit mode.
+    best: Vec<(f32, u32)>,
+    /// Every `(ray, t, proxy)` hit in all-hits mode.
+    all: Vec<(u32, f32, u32)>,
+    found: Vec<bool>,
+    /// Indices of live rays; reordered in place by the traversal.
+    active: Vec<u32>,
+    /// Lane masks per depth and ray: `masks[depth * rays + ray]`.
+    masks: Vec<u32>,
+}
+
+/// Lane mask and entry `t` per lane of one ray against one node: the S4
+/// predicate of `predicates::ray_box_entry`, written over the lane arrays
+/// with the same operations in the same order, so that it agrees bit for bit.
+#[inline]
+pub(crate) fn ray_lanes<const W: usize>(
+    ray: &RayTest,
+    limit: f32,
+    node: &Node<W>,
+) -> (u32, [f32; W]) {
+    let mut lo = [0.0f32; W];
+    let mut hi = [limit; W];
+    let mut slab_ok = [true; W];
+    for axis in 0..3 {
+        let o = ray.origin[axis];
+        let (min, max) = (&node.min[axis], &node.max[axis]);
+        if ray.dir[axis] == 0.0 {
+            for lane in 0..W {
+                slab_ok[lane] &= !(o < min[lane] || o > max[lane]);
+            }
+            continue;
+        }
+        let inv = ray.inv[axis];
+        let (near, far) = if inv > 0.0 { (min, max) } else { (max, min) };
+        for lane in 0..W {
+            let t0 = (near[lane] - o) * inv;
+            let t1 = (far[lane] - o) * inv;
+            if t0 > lo[lane] {
+                lo[lane] = t0;
+            }
+            if t1 < hi[lane] {
+                hi[lane] = t1;
+            }
+        }
+    }
+    let mut mask = 0u32;
+    for lane in 0..W {
+        mask |= ((slab_ok[lane] & (lo[lane] <= hi[lane])) as u32) << lane;
+    }
+    (mask, lo)
+}
+
+/// The lane visiting order for a ray direction: the node's order along the
+/// ray's dominant axis, forwards when the ray runs up that axis.
+#[inline]
+fn near_to_far<const W: usize>(node: &Node<W>, dir: [f32; 3]) -> impl Iterator<Item = usize> + '_ {
+    let abs = dir.map(f32::abs);
+    let axis = if abs[0] >= abs[1] && abs[0] >= abs[2] {
+        0
+    } else if abs[1] >= abs[2] {
+        1
+    } else {
+        2
+    };
+    let order = &node.order[axis][..node.len()];
+    let forward = dir[axis] >= 0.0;
+    (0..order.len()).map(move |i| order[if forward { i } else { order.len() - 1 - i }] as usize)
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// The visitor core for one ray: calls `visit(key, t, )` for hits with
+    /// `t <= limit`, where the limit starts at `ray.max_t` and becomes
+    /// whatever `visit` returns in `Continue(limit)`; `Break` stops.
+    /// Nodes are visited near to far and pruned when their entry `t` is
+    /// beyond the limit, so equal-`t` ties are still seen.
+    pub fn visit_ray<F>(
+        &self,
+        ray: &Ray,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) -> Result<(), SpatialError>
+    where
+        F: FnMut(K, f32) -> ControlFlow<(), f32>,
+    {
+        let ray = ray.canonicalized()?;
+        let test = RayTest::new(&ray);
+        let mut limit = ray.max_t;
+        let stack = &mut ws.ray_stack;
+        stack.clear();
+        stack.push((self.root(), 0.0));
+        while let Some((index, entry_t)) = stack.pop() {
+            if entry_t > limit {
+                continue;
+            }
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            let (mask, lane_t) = ray_lanes(&test, limit, node);
+            if node.is_leaf() {
+                ws.stats.entries_tested += node.len() as u64;
+                let mut hits = mask;
+                while hits != 0 {
+                    let lane = hits.trailing_zeros() as usize;
+                    hits &= hits - 1;
+                    if lane_t[lane] > limit {
+                        continue;
+                    }
+                    match visit(self.key_of(node.child[lane]), lane_t[lane]) {
+                        ControlFlow::Continue(next) => limit = limit.min(next),
+                        ControlFlow::Break(()) => return Ok(()),
+                    }
+                }
+            } else {
+                // Push far to near so the nearest child is popped first.
+                let order: smallvec::SmallVec<[usize; 16]> = near_to_far(node, test.dir).collect();
+                for &lane in order.iter().rev() {
+                    if mask & (1 << lane) != 0 {
+                        stack.push((node.child[lane], lane_t[lane]));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The first hit of one ray: the smallest `(t, key)`.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(1u32, Aabb::new(Vec3::new(5.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0))?)?;
+    /// tree.insert(2u32, Aabb::new(Vec3::new(2.0, -1.0, -1.0), Vec3::new(3.0, 1.0, 1.0))?)?;
+    /// let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0)?;
+    /// let hit = tree.cast_ray(&ray, &mut QueryWorkspace::default())?.unwrap();
+    /// assert_eq!((hit.key, hit.t), (2, 2.0));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn cast_ray(
+        &self,
+        ray: &Ray,
+        ws: &mut QueryWorkspace,
+    ) -> Result<Option<RayHit<K>>, SpatialError> {
+        let mut best: Option<RayHit<K>> = None;
+        self.visit_ray(ray, ws, |key, t| {
+            let better = match best {
+                None => true,
+                Some(b) => t < b.t || (t == b.t && key < b.key),
+            };
+            if better {
+                best = Some(RayHit { key, t });
+            }
+            ControlFlow::Continue(best.map_or(t, |b| b.t))
+        })?;
+        Ok(best)
+    }
+
+    /// Every hit of one ray, sorted by `(t, key)` and cut to `limit`,
+    /// written to `out` (cleared first).
+    pub fn cast_ray_all(
+        &self,
+        ray: &Ray,
+        limit: Option<usize>,
+        ws: &mut QueryWorkspace,
+        out: &mut Vec<RayHit<K>>,
+    ) -> Result<(), SpatialError> {
+        out.clear();
+        self.visit_ray(ray, ws, |key, t| {
+            out.push(RayHit { key, t });
+            ControlFlow::Continue(f32::INFINITY)
+        })?;
+        out.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
+        if let Some(limit) = limit {
+            out.truncate(limit);
+        }
+        Ok(())
+    }
+
+    /// Whether one ray hits anything (stops at the first hit found).
+    pub fn ray_hits_any(&self, ray: &Ray, ws: &mut QueryWorkspace) -> Result<bool, SpatialError> {
+        let mut found = false;
+        self.visit_ray(ray, ws, |_, _| {
+            found = true;
+            ControlFlow::Break(())
+        })?;
+        Ok(found)
+    }
+
+    /// Casts a batch of rays in one traversal of the tree and writes slot
+    /// `i` of `out` for ray `i`. An invalid ray gets its own error; the other
+    /// slots are unaffected. Answers equal those of the single-ray calls.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayMode, RayResults, SpatialError};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(7u32, Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?)?;
+    /// let rays = [
+    ///     Ray { origin: Vec3::new(-5.0, 0.0, 0.0), dir: Vec3::X, max_t: 10.0 },
+    ///     Ray { origin: Vec3::ZERO, dir: Vec3::ZERO, max_t: 1.0 }, // invalid
+    ///     Ray { origin: Vec3::new(-5.0, 3.0, 0.0), dir: Vec3::X, max_t: 10.0 },
+    /// ];
+    /// let mut out = RayResults::default();
+    /// tree.cast_rays(&rays, RayMode::First, &mut QueryWorkspace::default(), &mut out);
+    /// assert_eq!(out.first(0)?.map(|h| (h.key, h.t)), Some((7, 4.0)));
+    /// assert_eq!(out.first(1), Err(SpatialError::InvalidRay));
+    /// assert_eq!(out.first(2)?, None);
+    /// # Ok::<(), SpatialError>(())
+    /// ```
+    pub fn cast_rays(
+        &self,
+        rays: &[Ray],
+        mode: RayMode,
+        ws: &mut QueryWorkspace,
+        out: &mut RayResults<K>,
+    ) {
+        let n = rays.len();
+        let s = &mut ws.rays;
+        s.tests.clear();
+        s.limits.clear();
+        s.active.clear();
+        s.all.clear();
+        s.best.clear();
+        s.best.resize(n, (f32::INFINITY, NIL));
+        s.found.clear();
+        s.found.resize(n, false);
+        out.slots.clear();
+        out.hits.clear();
+        let mut errors: Vec<(usize, SpatialError)> = Vec::new();
+        for (i, ray) in rays.iter().enumerate() {
+            match ray.canonicalized() {
+                Ok(ray) => {
+                    s.tests.push(RayTest::new(&ray));
+                    s.limits.push(ray.max_t);
+                    s.active.push(i as u32);
+                }
+                Err(e) => {
+                    // A placeholder that never hits keeps indices aligned.
+                    s.tests.push(RayTest::new(&Ray {
+                        origin: glam::Vec3::ZERO,
+                        dir: glam::Vec3::X,
+                        max_t: 0.0,
+                    }));
+                    s.limits.push(-1.0);
+                    errors.push((i, e));
+                }
+            }
+        }
+        let height = self.height();
+        s.masks.clear();
+        s.masks.resize(height * n, 0);
+        let mut active = std::mem::take(&mut s.active);
+        self.batch_node(self.root(), &mut active, 0, mode, ws);
+        ws.rays.active = active;
+
+        // Gather answers slot by slot.
+        let s = &mut ws.rays;
+        if let RayMode::All { .. } = mode {
+            let keys = |p: u32| self.key_of(p);
+            s.all.sort_unstable_by(|a, b| {
+                a.0.cmp(&b.0)
+                    .then(a.1.total_cmp(&b.1))
+                    .then(keys(a.2).cmp(&keys(b.2)))
+            });
+        }
+        let mut all_cursor = 0usize;
+        let mut error_cursor = 0usize;
+        for i in 0..n {
+            if error_cursor < errors.len() && errors[error_cursor].0 == i {
+                out.slots.push(Err(errors[error_cursor].1));
+                error_cursor += 1;
+                continue;
+            }
+            let start = out.hits.len() as u32;
+            match mode {
+                RayMode::First => {
+                    let (t, proxy) = s.best[i];
+                    if proxy != NIL {
+                        out.hits.push(RayHit {
+                            key: self.key_of(proxy),
+                            t,
+                        });
+                    }
+                }
+                RayMode::All { limit } => {
+                    let mut kept = 0usize;
+                    while all_cursor < s.all.len() && s.all[all_cursor].0 == i as u32 {
+                        let (_, t, proxy) = s.all[all_cursor];
+                        if limit.is_none_or(|l| kept < l) {
+                            out.hits.push(RayHit {
+                                key: self.key_of(proxy),
+                                t,
+                            });
+                            kept += 1;
+                        }
+                        all_cursor += 1;
+                    }
+                }
+                RayMode::Any => {}
+            }
+            let end = out.hits.len() as u32;
+            out.slots.push(Ok((start..end, s.found[i])));
+        }
+    }
+
+    /// One node of the batched traversal: test every live ray against the
+    /// lanes, then, child by child (near to far for the first ray), move the
+    /// rays that hit the child to the front and recurse with their count.
+    fn batch_node(
+        &self,
+        index: u32,
+        active: &mut [u32],
+        depth: usize,
+        mode: RayMode,
+        ws: &mut QueryWorkspace,
+    ) {
+        let node = self.node(index);
+        ws.stats.nodes_visited += 1;
+        let s = &mut ws.rays;
+        let n = s.limits.len();
+        if node.is_leaf() {
+            ws.stats.entries_tested += (active.len() * node.len()) as u64;
+            for &r in active.iter() {
+                let r = r as usize;
+                let limit = s.limits[r];
+                if limit < 0.0 {
+                    continue;
+                }
+                let (mut hits, lane_t) = ray_lanes(&s.tests[r], limit, node);
+                while hits != 0 {
+                    let lane = hits.trailing_zeros() as usize;
+                    hits &= hits - 1;
+                    let (t, proxy) = (lane_t[lane], node.child[lane]);
+                    s.found[r] = true;
+                    match mode {
+                        RayMode::First => {
+                            let (best_t, best_proxy) = s.best[r];
+                            let better = best_proxy == NIL
+                                || t < best_t
+                                || (t == best_t && self.key_of(proxy) < self.key_of(best_proxy));
+                            if better {
+                                s.best[r] = (t, proxy);
+                                s.limits[r] = t;
+                            }
+                        }
+                        RayMode::All { .. } => s.all.push((r as u32, t, proxy)),
+                        RayMode::Any => {
+                            s.limits[r] = -1.0;
+                            break;
+                        }
+                    }
+                }
+            }
+            return;
+        }
+        let row = depth * n;
+        for &r in active.iter() {
+            let r = r as usize;
+            let (mask, _) = ray_lanes(&s.tests[r], s.limits[r], node);
+            s.masks[row + r] = mask;
+        }
+        let dir = s.tests[active[0] as usize].dir;
+        let order: smallvec::SmallVec<[usize; 16]> = near_to_far(node, dir).collect();
+        for lane in order {
+            let bit = 1u32 << lane;
+            let s = &mut ws.rays;
+            // Move-to-front: rays hitting this child (and still live) first.
+            let mut count = 0;
+            for i in 0..active.len() {
+                let r = active[i] as usize;
+                if s.masks[row + r] & bit != 0 && s.limits[r] >= 0.0 {
+                    active.swap(i, count);
+                    count += 1;
+                }
+            }
+            if count > 0 {
+                self.batch_node(node.child[lane], &mut active[..count], depth + 1, mode, ws);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Aabb;
+    use crate::geometry::predicates::ray_box_entry;
+    use crate::scene::SceneRng;
+    use glam::Vec3;
+
+    /// The lane code (the path the compiler vectorises) and the scalar S4
+    /// predicate agree bit for bit, on grid values that make slabs touch
+    /// and on arbitrary floats.
+    #[test]
+    fn lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
+        let mut rng = SceneRng::new(5);
+        let mut pick = |grid: bool| {
+            if grid {
+                (rng.below(9) as f32 - 4.0) * 0.5
+            } else {
+                rng.range(-5.0, 5.0)
+            }
+        };
+        for round in 0..20_000 {
+            let grid = round % 2 == 0;
+            let mut node = Node::<8>::empty(0, NIL);
+            let lanes = 1 + round % 8;
+            for lane in 0..lanes {
+                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
+                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
+                node.set_lane_box(
+                    lane,
+                    &Aabb {
+                        min: a.min(b),
+                        max: a.max(b),
+                    },
+                );
+            }
+            let dir = Vec3::new(pick(grid), pick(grid), pick(grid));
+            let Ok(ray) = Ray::new(
+                Vec3::new(pick(grid), pick(grid), pick(grid)),
+                dir,
+                pick(grid).abs() * 3.0,
+            ) else {
+                continue;
+            };
+            let test = RayTest::new(&ray);
+            let limit = if round % 3 == 0 {
+                f32::INFINITY
+            } else {
+                ray.max_t
+            };
+            let (mask, lane_t) = ray_lanes(&test, limit, &node);
+            for lane in 0..8 {
+                let b = node.lane_box(lane);
+                let scalar = ray_box_entry(&test, limit, b.min.to_array(), b.max.to_array());
+                assert_eq!(
+                    mask & (1 << lane) != 0,
+                    scalar.is_some(),
+                    "lane {lane} round {round}"
+                );
+                if let Some(t) = scalar {
+                    assert_eq!(t.to_bits(), lane_t[lane].to_bits());
+                }
+            }
+        }
+    }
+}

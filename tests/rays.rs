@@ -1,0 +1,311 @@
+//! Raycasts against the oracle: random scenes on a coarse grid where rays
+//! graze faces and edges, batches with invalid rays, and the ray hard cases
+//! of SEMANTICS.md.
+
+mod common;
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayHit, RayMode, RayResults, SpatialError};
+use glam::Vec3;
+use proptest::prelude::*;
+
+fn grid_ray() -> impl Strategy<Value = Ray> {
+    let dir = (-2i32..=2, -2i32..=2, -2i32..=2)
+        .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32));
+    let max_t = prop_oneof![
+        (0i32..=64).prop_map(|t| t as f32 * 0.25),
+        Just(f32::INFINITY)
+    ];
+    (common::grid_point(), dir, max_t).prop_map(|(origin, dir, max_t)| Ray { origin, dir, max_t })
+}
+
+fn build<const W: usize>(boxes: &[Aabb]) -> (RTree<u32, W>, BruteForce<u32>) {
+    let mut tree = RTree::<u32, W>::with_settings(Default::default()).unwrap();
+    let mut oracle = BruteForce::default();
+    for (i, b) in boxes.iter().enumerate() {
+        tree.insert(i as u32, *b).unwrap();
+        oracle.insert(i as u32, *b);
+    }
+    (tree, oracle)
+}
+
+/// Every single-ray and batched answer equals the oracle's.
+fn check_rays<const W: usize>(tree: &RTree<u32, W>, oracle: &BruteForce<u32>, rays: &[Ray]) {
+    let mut ws = QueryWorkspace::default();
+    let mut all = Vec::new();
+    for ray in rays {
+        let expected = oracle.ray_hits(ray);
+        assert_eq!(
+            tree.cast_ray(ray, &mut ws),
+            expected.clone().map(|h| h.first().copied()),
+            "{ray:?}"
+        );
+        assert_eq!(
+            tree.cast_ray_all(ray, None, &mut ws, &mut all)
+                .map(|_| all.clone()),
+            expected.clone()
+        );
+        assert_eq!(
+            tree.ray_hits_any(ray, &mut ws),
+            expected.map(|h| !h.is_empty())
+        );
+    }
+    let mut out = RayResults::default();
+    for mode in [
+        RayMode::First,
+        RayMode::All { limit: None },
+        RayMode::All { limit: Some(2) },
+        RayMode::Any,
+    ] {
+        tree.cast_rays(rays, mode, &mut ws, &mut out);
+        assert_eq!(out.len(), rays.len());
+        for (i, ray) in rays.iter().enumerate() {
+            let expected = oracle.ray_hits(ray);
+            match (&expected, mode) {
+                (Err(e), _) => assert_eq!(out.hits(i).map(<[_]>::to_vec), Err(*e)),
+                (Ok(hits), RayMode::First) => {
+                    assert_eq!(out.hits(i).unwrap(), &hits[..hits.len().min(1)])
+                }
+                (Ok(hits), RayMode::All { limit }) => {
+                    let cut = limit.unwrap_or(usize::MAX).min(hits.len());
+                    assert_eq!(out.hits(i).unwrap(), &hits[..cut], "ray {i} {ray:?}");
+                }
+                (Ok(hits), RayMode::Any) => {
+                    assert!(out.hits(i).unwrap().is_empty());
+                    assert_eq!(out.any(i).unwrap(), !hits.is_empty());
+                }
+            }
+            if let Ok(hits) = &expected {
+                assert_eq!(out.any(i).unwrap(), !hits.is_empty());
+            }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn rays_on_a_grid_match_the_oracle(
+        boxes in prop::collection::vec(common::grid_box(), 0..250),
+        rays in prop::collection::vec(grid_ray(), 1..40),
+    ) {
+        let (tree, oracle) = build::<4>(&boxes);
+        check_rays(&tree, &oracle, &rays);
+        let (tree, oracle) = build::<8>(&boxes);
+        check_rays(&tree, &oracle, &rays);
+    }
+}
+
+/// The unit box as key 0 among 1,000 distractors away from it.
+fn unit_world(extra: &[Aabb]) -> (RTree<u32>, BruteForce<u32>) {
+    let mut rng = bevy_rtree::scene::SceneRng::new(11);
+    let mut boxes = vec![common::aabb([0.0; 3], [1.0; 3])];
+    boxes.extend_from_slice(extra);
+    while boxes.len() < 1_000 + 1 + extra.len() {
+        let c = Vec3::new(
+            rng.range(-60.0, 60.0),
+            rng.range(-60.0, 60.0),
+            rng.range(-60.0, 60.0),
+        );
+        if c.abs().max_element() > 5.0 {
+            boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
+        }
+    }
+    build::<8>(&boxes)
+}
+
+/// Asserts the ray hits key 0 first at `t` (or misses it), and that every
+/// answer, single and batched, equals the oracle's.
+fn expect(ray: Ray, unit_t: Option<f32>) {
+    let (tree, oracle) = unit_world(&[]);
+    let hits = oracle.ray_hits(&ray).unwrap();
+    let unit = hits.iter().find(|h| h.key == 0).map(|h| h.t);
+    assert_eq!(unit, unit_t, "{ray:?}");
+    check_rays(&tree, &oracle, &[ray]);
+}
+
+fn ray(o: [f32; 3], d: [f32; 3], max_t: f32) -> Ray {
+    Ray {
+        origin: Vec3::from(o),
+        dir: Vec3::from(d),
+        max_t,
+    }
+}
+
+#[test]
+fn grazing_every_face_along_every_axis_hits() {
+    for axis in 0..3 {
+        for other in (0..3).filter(|&a| a != axis) {
+            for face in [0.0, 1.0] {
+                let mut o = [0.5; 3];
+                o[axis] = -1.0;
+                o[other] = face;
+                let mut d = [0.0; 3];
+                d[axis] = 1.0;
+                expect(ray(o, d, f32::INFINITY), Some(1.0));
+                // A negative zero in the direction changes nothing.
+                let third = 3 - axis - other;
+                d[third] = -0.0;
+                expect(ray(o, d, f32::INFINITY), Some(1.0));
+            }
+        }
+    }
+    expect(ray([-1.0, 1.0, 0.5], [1.0, -0.0, 0.0], 10.0), Some(1.0));
+}
+
+#[test]
+fn edges_and_corners_count_as_hits() {
+    expect(ray([-1.0, 1.0, 1.0], [1.0, 0.0, 0.0], 10.0), Some(1.0)); // along an edge
+    expect(ray([0.0, 2.0, 0.0], [1.0, -1.0, 1.0], 10.0), Some(1.0)); // touches corner (1,1,1) only
+    expect(ray([2.0, 2.0, 0.5], [-1.0, 1.0, 0.0], 10.0), None); // passes beside the edge
+    expect(ray([2.0, 0.0, 0.5], [-1.0, 1.0, 0.0], 10.0), Some(1.0)); // touches edge x=1,y=1 only
+}
+
+#[test]
+fn origins_inside_or_on_the_box_hit_at_zero() {
+    expect(ray([0.5, 0.5, 0.5], [1.0, 0.0, 0.0], 10.0), Some(0.0));
+    expect(ray([1.0, 0.5, 0.5], [1.0, 0.0, 0.0], 10.0), Some(0.0)); // on a face, pointing out
+    expect(ray([1.0, 0.5, 0.5], [1.0, 2.0, 3.0], 0.0), Some(0.0)); // max_t = 0 on the face
+    expect(ray([1.5, 0.5, 0.5], [-1.0, 0.0, 0.0], 0.0), None); // max_t = 0 outside
+}
+
+#[test]
+fn max_t_exactly_reaching_a_face_hits_and_one_ulp_short_misses() {
+    expect(ray([-1.0, 0.5, 0.5], [1.0, 0.0, 0.0], 1.0), Some(1.0));
+    expect(
+        ray([-1.0, 0.5, 0.5], [1.0, 0.0, 0.0], 1f32.next_down()),
+        None,
+    );
+}
+
+#[test]
+fn point_and_flat_boxes_in_and_across_their_plane() {
+    let point = common::aabb([5.0, 5.0, 5.0], [5.0, 5.0, 5.0]);
+    let flat = common::aabb([8.0, 8.0, 8.0], [9.0, 9.0, 8.0]);
+    let (tree, oracle) = unit_world(&[point, flat]);
+    let cases = [
+        ray([0.0, 5.0, 5.0], [1.0, 0.0, 0.0], 10.0), // through the point
+        ray([5.0, 5.0, 0.0], [0.0, 0.0, 1.0], 10.0), // through the point along z
+        ray([8.5, 8.5, 0.0], [0.0, 0.0, 1.0], 10.0), // across the flat box
+        ray([7.0, 8.5, 8.0], [1.0, 0.0, 0.0], 10.0), // in its plane
+        ray([7.0, 8.5, 8.0], [1.0, 1.0, 0.0], 0.5),  // in its plane, stops short
+    ];
+    for (i, r) in cases.iter().enumerate() {
+        let hits = oracle.ray_hits(r).unwrap();
+        let target = if i < 2 { 1 } else { 2 };
+        assert_eq!(hits.iter().any(|h| h.key == target), i < 4, "case {i}");
+    }
+    check_rays(&tree, &oracle, &cases);
+}
+
+#[test]
+fn boxes_behind_the_origin_are_missed_and_found_when_reversed() {
+    expect(ray([3.0, 0.5, 0.5], [1.0, 0.0, 0.0], f32::INFINITY), None);
+    expect(
+        ray([3.0, 0.5, 0.5], [-1.0, 0.0, 0.0], f32::INFINITY),
+        Some(2.0),
+    );
+}
+
+#[test]
+fn subnormal_direction_components_become_zero() {
+    // Canonically (1, 0, 0): the ray runs along the face y = 1.
+    expect(ray([-1.0, 1.0, 0.5], [1.0, 1e-40, 0.0], 10.0), Some(1.0));
+    expect(ray([-1.0, 1.0 + 1e-6, 0.5], [1.0, -1e-40, 0.0], 10.0), None);
+}
+
+#[test]
+fn bad_rays_fail_in_their_own_slot_only() {
+    let (tree, oracle) = unit_world(&[]);
+    let good = ray([-1.0, 0.5, 0.5], [1.0, 0.0, 0.0], 10.0);
+    let batch = [
+        good,
+        ray([0.0; 3], [0.0; 3], 1.0),
+        ray([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], 1.0),
+        ray([0.0; 3], [1.0, 0.0, 0.0], -1.0),
+        ray([0.0; 3], [1.0, 0.0, 0.0], f32::NAN),
+        good,
+    ];
+    let mut out = RayResults::default();
+    tree.cast_rays(
+        &batch,
+        RayMode::First,
+        &mut QueryWorkspace::default(),
+        &mut out,
+    );
+    for i in 1..5 {
+        assert_eq!(out.first(i), Err(SpatialError::InvalidRay));
+        assert_eq!(out.any(i), Err(SpatialError::InvalidRay));
+    }
+    for i in [0, 5] {
+        assert_eq!(out.first(i).unwrap(), Some(RayHit { key: 0, t: 1.0 }));
+    }
+    check_rays(&tree, &oracle, &batch);
+}
+
+#[test]
+fn far_from_the_origin_hits_stay_exact() {
+    let far = common::aabb([1e7, 0.0, 0.0], [1e7 + 1.0, 1.0, 1.0]);
+    let tiny = common::aabb([1e5, 0.5, 0.5], [1e5 + 1e-6, 0.5 + 1e-6, 0.5 + 1e-6]);
+    assert_eq!(
+        tiny.min.x, tiny.max.x,
+        "the tiny box collapses to a point in x"
+    );
+    let (tree, oracle) = unit_world(&[far, tiny]);
+    let at_far = ray([1e7 - 100.0, 0.5, 0.5], [1.0, 0.0, 0.0], f32::INFINITY);
+    let at_tiny = ray([0.0, 0.5, 0.5], [1.0, 0.0, 0.0], f32::INFINITY);
+    let mut ws = QueryWorkspace::default();
+    assert_eq!(
+        tree.cast_ray(&at_far, &mut ws).unwrap(),
+        Some(RayHit { key: 1, t: 100.0 })
+    );
+    let mut all = Vec::new();
+    tree.cast_ray_all(&at_tiny, None, &mut ws, &mut all)
+        .unwrap();
+    assert!(all.iter().any(|h| h.key == 2 && h.t == 1e5), "{all:?}");
+    check_rays(&tree, &oracle, &[at_far, at_tiny]);
+}
+
+#[test]
+fn equal_t_ties_resolve_to_the_smallest_key() {
+    let mut tree = RTree::new();
+    let mut oracle = BruteForce::default();
+    let stacked = common::aabb([2.0, 0.0, 0.0], [3.0, 1.0, 1.0]);
+    for key in [9u32, 4, 7, 5] {
+        tree.insert(key, stacked).unwrap();
+        oracle.insert(key, stacked);
+    }
+    let r = ray([0.0, 0.5, 0.5], [1.0, 0.0, 0.0], 10.0);
+    assert_eq!(
+        tree.cast_ray(&r, &mut QueryWorkspace::default()).unwrap(),
+        Some(RayHit { key: 4, t: 2.0 })
+    );
+    check_rays(&tree, &oracle, &[r]);
+}
+
+#[test]
+fn batches_of_the_standard_scene_match_single_rays() {
+    let mut scene = bevy_rtree::scene::TownScene::new(20_000, 4);
+    let mut tree = RTree::new();
+    tree.insert_bulk(
+        scene
+            .boxes()
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (i as u32, *b)),
+    )
+    .unwrap();
+    let mut rays = scene.incoherent_rays(300);
+    rays.extend(scene.coherent_rays());
+    let mut ws = QueryWorkspace::default();
+    let mut out = RayResults::default();
+    tree.cast_rays(&rays, RayMode::First, &mut ws, &mut out);
+    let mut hits = 0;
+    for (i, r) in rays.iter().enumerate() {
+        let single = tree.cast_ray(r, &mut ws).unwrap();
+        assert_eq!(out.first(i).unwrap(), single);
+        hits += single.is_some() as usize;
+    }
+    assert!(hits > 100, "the scene's rays hit things ({hits})");
+}
