@@ -64,7 +64,7 @@ pub mod scene;
 pub mod tree;
 
 pub use geometry::{Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, Ray, SpatialError};
-pub use query::{CullMode, QueryWorkspace, RayHit, RayMode, RayResults, oracle};
+pub use query::{CullMode, JoinMode, QueryWorkspace, RayHit, RayMode, RayResults, oracle};
 pub use tree::{
     InvariantViolation, MaintenanceStats, MoveKind, ProxyId, QueryStats, RTree, TreeSettings,
 };

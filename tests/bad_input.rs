@@ -6,8 +6,12 @@ mod common;
 use bevy_rtree::{Aabb, ProxyId, RTree, Ray, SpatialError, TreeSettings};
 use glam::Vec3;
 
+/// Everything observable about a tree: its length, what a query over the
+/// whole world returns, and every entry's key and box.
+type Snapshot = (usize, Vec<u32>, Vec<(u32, [f32; 6])>);
+
 /// Everything observable about a tree, for before/after comparisons.
-fn snapshot(tree: &RTree<u32>) -> (usize, Vec<u32>, Vec<(u32, [f32; 6])>) {
+fn snapshot(tree: &RTree<u32>) -> Snapshot {
     let everything = Aabb::new(Vec3::splat(-1e15), Vec3::splat(1e15)).unwrap();
     let mut entries: Vec<(u32, [f32; 6])> = tree
         .iter()

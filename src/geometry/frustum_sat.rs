@@ -225,8 +225,9 @@ fn solve4(rows: [([f64; 4], f64); 4]) -> Option<[f64; 4]> {
         for r in 0..4 {
             if r != col {
                 let f = m[r][col] / m[col][col];
-                for c in col..5 {
-                    m[r][c] -= f * m[col][c];
+                let pivot_row = m[col];
+                for (value, p) in m[r].iter_mut().zip(pivot_row).skip(col) {
+                    *value -= f * p;
                 }
             }
         }

@@ -21,7 +21,6 @@ pub(crate) struct RayTest {
     pub origin: [f32; 3],
     pub dir: [f32; 3],
     pub inv: [f32; 3],
-    pub max_t: f32,
 }
 
 impl RayTest {
@@ -33,7 +32,6 @@ impl RayTest {
             origin: ray.origin.to_array(),
             dir,
             inv: dir.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d }),
-            max_t: ray.max_t,
         }
     }
 }

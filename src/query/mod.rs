@@ -7,11 +7,13 @@
 //! every frame do not allocate.
 
 mod frustum;
+mod join;
 pub mod oracle;
 mod overlap;
 mod ray;
 mod workspace;
 
 pub use frustum::{CullMode, FRUSTUMS_PER_PASS};
+pub use join::JoinMode;
 pub use ray::{RayHit, RayMode, RayResults};
 pub use workspace::QueryWorkspace;

@@ -9,7 +9,7 @@ use glam::Vec3;
 use crate::geometry::predicates;
 use crate::geometry::predicates::RayTest;
 use crate::geometry::{Aabb, Frustum, FrustumSat, Ray, SpatialError};
-use crate::query::{CullMode, RayHit};
+use crate::query::{CullMode, JoinMode, RayHit};
 
 /// A flat list of entries answering every query by testing all of them.
 ///
@@ -116,5 +116,51 @@ impl<K: Copy + Ord> BruteForce<K> {
     /// The first hit of `ray`: the smallest `(t, key)`.
     pub fn ray_first(&self, ray: &Ray) -> Result<Option<RayHit<K>>, SpatialError> {
         Ok(self.ray_hits(ray)?.first().copied())
+    }
+
+    /// Sorted `(lo, hi)` pairs of distinct entries within `distance`, by a
+    /// sort-and-sweep along x (SEMANTICS S8).
+    pub fn self_join(&self, distance: f32, mode: JoinMode) -> Result<Vec<(K, K)>, SpatialError> {
+        let d = predicates::check_distance(distance)?;
+        let mut order: Vec<usize> = (0..self.entries.len()).collect();
+        order
+            .sort_unstable_by(|&a, &b| self.entries[a].1.min.x.total_cmp(&self.entries[b].1.min.x));
+        let mut out = Vec::new();
+        for (i, &a) in order.iter().enumerate() {
+            let (ka, ba) = self.entries[a];
+            for &b in &order[i + 1..] {
+                let (kb, bb) = self.entries[b];
+                // Sorted by min.x: once the x gap alone exceeds d, stop.
+                if bb.min.x as f64 - ba.max.x as f64 > d {
+                    break;
+                }
+                if mode.accepts(&ba, &bb, d) {
+                    out.push((ka.min(kb), ka.max(kb)));
+                }
+            }
+        }
+        out.sort_unstable();
+        Ok(out)
+    }
+
+    /// Sorted `(a, b)` pairs, `a` from `self` and `b` from `other`, `a != b`,
+    /// within `distance`.
+    pub fn cross_join(
+        &self,
+        other: &BruteForce<K>,
+        distance: f32,
+        mode: JoinMode,
+    ) -> Result<Vec<(K, K)>, SpatialError> {
+        let d = predicates::check_distance(distance)?;
+        let mut out = Vec::new();
+        for (ka, ba) in &self.entries {
+            for (kb, bb) in &other.entries {
+                if ka != kb && mode.accepts(ba, bb, d) {
+                    out.push((*ka, *kb));
+                }
+            }
+        }
+        out.sort_unstable();
+        Ok(out)
     }
 }

@@ -18,6 +18,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(K, &Aabb) -> ControlFlow<()>,
     {
+        self.visit_overlapping_proxies(query, ws, |proxy, aabb| visit(self.key_of(proxy), aabb));
+    }
+
+    /// The traversal behind [`RTree::visit_overlapping`], reporting proxy
+    /// indices so that other queries (joins) can tell entries apart.
+    pub(crate) fn visit_overlapping_proxies<F>(
+        &self,
+        query: &Aabb,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) where
+        F: FnMut(u32, &Aabb) -> ControlFlow<()>,
+    {
         ws.stack.clear();
         ws.stack.push(self.root());
         while let Some(index) = ws.stack.pop() {
@@ -29,8 +42,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 while mask != 0 {
                     let lane = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
-                    let key = self.key_of(node.child[lane]);
-                    if visit(key, &node.lane_box(lane)).is_break() {
+                    if visit(node.child[lane], &node.lane_box(lane)).is_break() {
                         return;
                     }
                 }

@@ -519,7 +519,7 @@ mod tests {
                 ray.max_t
             };
             let (mask, lane_t) = ray_lanes(&test, limit, &node);
-            for lane in 0..8 {
+            for (lane, lane_t) in lane_t.iter().enumerate() {
                 let b = node.lane_box(lane);
                 let scalar = ray_box_entry(&test, limit, b.min.to_array(), b.max.to_array());
                 assert_eq!(
@@ -528,7 +528,7 @@ mod tests {
                     "lane {lane} round {round}"
                 );
                 if let Some(t) = scalar {
-                    assert_eq!(t.to_bits(), lane_t[lane].to_bits());
+                    assert_eq!(t.to_bits(), lane_t.to_bits());
                 }
             }
         }

@@ -32,6 +32,10 @@ pub struct QueryWorkspace {
     pub(crate) cull_stack: Vec<(u32, u64)>,
     /// Single-ray traversal stack: node index and its entry `t`.
     pub(crate) ray_stack: Vec<(u32, f32)>,
+    /// Join traversal stack: pairs of node indices.
+    pub(crate) join_stack: Vec<(u32, u32)>,
+    /// Sorted proxy indices of the moved entries of an incremental join.
+    pub(crate) moved: Vec<u32>,
     /// Per-ray state of batched raycasts.
     pub(crate) rays: super::ray::RayBatchScratch,
     pub(crate) stats: QueryStats,

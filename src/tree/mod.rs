@@ -278,6 +278,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
+    /// The live handle of a proxy index.
+    pub(crate) fn handle_of(&self, proxy: u32) -> ProxyId {
+        self.handle(proxy)
+    }
+
     fn handle(&self, proxy: u32) -> ProxyId {
         ProxyId {
             index: proxy,

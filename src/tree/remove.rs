@@ -94,7 +94,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             current = parent;
         }
-        orphans.sort_by(|a, b| b.1.cmp(&a.1));
+        orphans.sort_by_key(|orphan| std::cmp::Reverse(orphan.1));
         for (entry, level) in orphans {
             self.insert_entry(entry, level);
         }

@@ -1,0 +1,305 @@
+//! Distance joins: every pair of entries within a distance, of one tree with
+//! itself or of two trees.
+//!
+//! The traversal descends pairs of nodes in lock step: for two nodes it tests
+//! every pair of their children and recurses only into the pairs that can
+//! still be within the distance, so whole regions far apart are dismissed at
+//! once. Entry pairs are decided by the predicate of SEMANTICS S8 in `f64`.
+
+use std::ops::ControlFlow;
+
+use glam::Vec3;
+
+use super::QueryWorkspace;
+use crate::geometry::predicates::{check_distance, within_chebyshev, within_euclidean};
+use crate::geometry::{Aabb, SpatialError};
+use crate::tree::node::Node;
+use crate::tree::{ProxyId, RTree};
+
+/// Which distance a join uses (SEMANTICS S8).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum JoinMode {
+    /// Pair iff the Euclidean distance between the closed boxes is `<= d`.
+    #[default]
+    Euclidean,
+    /// Pair iff the gap on every axis is `<= d` (the box grown by `d`
+    /// overlaps): cheaper, and a superset of the Euclidean pairs (it adds
+    /// diagonal neighbours up to `d·√3` apart).
+    Chebyshev,
+}
+
+impl JoinMode {
+    /// The pair predicate of this mode (SEMANTICS S8).
+    #[inline]
+    pub(crate) fn accepts(self, a: &Aabb, b: &Aabb, distance: f64) -> bool {
+        match self {
+            JoinMode::Euclidean => within_euclidean(a, b, distance),
+            JoinMode::Chebyshev => within_chebyshev(a, b, distance),
+        }
+    }
+}
+
+/// `aabb` grown by `distance` on every side, rounded outward, so that a lane
+/// overlap test against it never dismisses a pair within `distance`.
+#[inline]
+fn reach(aabb: &Aabb, distance: f32) -> Aabb {
+    let d = Vec3::splat(distance);
+    Aabb {
+        min: Vec3::from_array((aabb.min - d).to_array().map(f32::next_down)),
+        max: Vec3::from_array((aabb.max + d).to_array().map(f32::next_up)),
+    }
+}
+
+#[inline]
+fn used_lanes<const W: usize>(node: &Node<W>) -> u32 {
+    if node.len() >= 32 {
+        u32::MAX
+    } else {
+        (1u32 << node.len()) - 1
+    }
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Calls `visit(lo, hi)` once for every unordered pair of distinct
+    /// entries within `distance` (`lo <= hi` by key), until `visit` breaks.
+    /// Fails with [`SpatialError::InvalidDistance`] unless `distance` is
+    /// finite and `>= 0`.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, JoinMode, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
+    /// tree.insert(2u32, Aabb::new(Vec3::new(3.0, 0.0, 0.0), Vec3::new(4.0, 1.0, 1.0))?)?;
+    /// tree.insert(3u32, Aabb::new(Vec3::splat(50.0), Vec3::splat(51.0))?)?;
+    /// assert_eq!(tree.self_join(2.0, JoinMode::Euclidean)?, vec![(1, 2)]);
+    /// assert!(tree.self_join(1.5, JoinMode::Euclidean)?.is_empty());
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn visit_self_join<F>(
+        &self,
+        distance: f32,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) -> Result<(), SpatialError>
+    where
+        F: FnMut(K, K) -> ControlFlow<()>,
+    {
+        let exact = check_distance(distance)?;
+        ws.join_stack.clear();
+        ws.join_stack.push((self.root(), self.root()));
+        while let Some((a, b)) = ws.join_stack.pop() {
+            ws.stats.nodes_visited += 1;
+            let (na, nb) = (self.node(a), self.node(b));
+            let used_b = used_lanes(nb);
+            for i in 0..na.len() {
+                let lane_box = na.lane_box(i);
+                let mut mask = nb.overlap_mask(&reach(&lane_box, distance)) & used_b;
+                if a == b {
+                    // Within one node: each unordered pair of lanes once,
+                    // and each child with itself.
+                    mask &= !((2u32 << i) - 1);
+                    if !na.is_leaf() {
+                        ws.join_stack.push((na.child[i], na.child[i]));
+                    }
+                }
+                if na.is_leaf() {
+                    ws.stats.entries_tested += mask.count_ones() as u64;
+                }
+                while mask != 0 {
+                    let j = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    if na.is_leaf() {
+                        if mode.accepts(&lane_box, &nb.lane_box(j), exact) {
+                            let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
+                            if visit(ka.min(kb), ka.max(kb)).is_break() {
+                                return Ok(());
+                            }
+                        }
+                    } else {
+                        ws.join_stack.push((na.child[i], nb.child[j]));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// All pairs of [`RTree::visit_self_join`], sorted.
+    pub fn self_join(&self, distance: f32, mode: JoinMode) -> Result<Vec<(K, K)>, SpatialError> {
+        let mut out = Vec::new();
+        self.self_join_into(distance, mode, &mut QueryWorkspace::default(), &mut out)?;
+        out.sort_unstable();
+        Ok(out)
+    }
+
+    /// Appends the pairs of [`RTree::visit_self_join`] to `out`, unordered.
+    pub fn self_join_into(
+        &self,
+        distance: f32,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        out: &mut Vec<(K, K)>,
+    ) -> Result<(), SpatialError> {
+        self.visit_self_join(distance, mode, ws, |a, b| {
+            out.push((a, b));
+            ControlFlow::Continue(())
+        })
+    }
+
+    /// Calls `visit(a, b)` once for every pair of an entry `a` of this tree
+    /// and an entry `b` of `other` within `distance`, with `a != b` by key,
+    /// until `visit` breaks. The two trees may have different shapes and
+    /// widths of the same `W`.
+    pub fn visit_cross_join<F>(
+        &self,
+        other: &RTree<K, W>,
+        distance: f32,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) -> Result<(), SpatialError>
+    where
+        F: FnMut(K, K) -> ControlFlow<()>,
+    {
+        let exact = check_distance(distance)?;
+        if self.is_empty() || other.is_empty() {
+            return Ok(());
+        }
+        ws.join_stack.clear();
+        ws.join_stack.push((self.root(), other.root()));
+        while let Some((a, b)) = ws.join_stack.pop() {
+            ws.stats.nodes_visited += 1;
+            let (na, nb) = (self.node(a), other.node(b));
+            // Descend the taller side alone until the levels meet.
+            if na.level > nb.level {
+                let bound = reach(&nb.lanes_union(), distance);
+                let mut mask = na.overlap_mask(&bound) & used_lanes(na);
+                while mask != 0 {
+                    let i = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    ws.join_stack.push((na.child[i], b));
+                }
+                continue;
+            }
+            if nb.level > na.level {
+                let bound = reach(&na.lanes_union(), distance);
+                let mut mask = nb.overlap_mask(&bound) & used_lanes(nb);
+                while mask != 0 {
+                    let j = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    ws.join_stack.push((a, nb.child[j]));
+                }
+                continue;
+            }
+            let used_b = used_lanes(nb);
+            for i in 0..na.len() {
+                let lane_box = na.lane_box(i);
+                let mut mask = nb.overlap_mask(&reach(&lane_box, distance)) & used_b;
+                if na.is_leaf() {
+                    ws.stats.entries_tested += mask.count_ones() as u64;
+                }
+                while mask != 0 {
+                    let j = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    if na.is_leaf() {
+                        let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
+                        if ka != kb
+                            && mode.accepts(&lane_box, &nb.lane_box(j), exact)
+                            && visit(ka, kb).is_break()
+                        {
+                            return Ok(());
+                        }
+                    } else {
+                        ws.join_stack.push((na.child[i], nb.child[j]));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// All pairs of [`RTree::visit_cross_join`], sorted.
+    pub fn cross_join(
+        &self,
+        other: &RTree<K, W>,
+        distance: f32,
+        mode: JoinMode,
+    ) -> Result<Vec<(K, K)>, SpatialError> {
+        let mut out = Vec::new();
+        self.cross_join_into(
+            other,
+            distance,
+            mode,
+            &mut QueryWorkspace::default(),
+            &mut out,
+        )?;
+        out.sort_unstable();
+        Ok(out)
+    }
+
+    /// Appends the pairs of [`RTree::visit_cross_join`] to `out`, unordered.
+    pub fn cross_join_into(
+        &self,
+        other: &RTree<K, W>,
+        distance: f32,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        out: &mut Vec<(K, K)>,
+    ) -> Result<(), SpatialError> {
+        self.visit_cross_join(other, distance, mode, ws, |a, b| {
+            out.push((a, b));
+            ControlFlow::Continue(())
+        })
+    }
+
+    /// The self-join pairs that involve at least one entry of `moved`, each
+    /// once, as `(lo, hi)` by key: with the previous frame's pairs of those
+    /// entries, a caller derives pair-started and pair-ended events without
+    /// a full join. Fails on an unknown handle or an invalid distance before
+    /// reporting anything.
+    pub fn visit_self_join_moved<F>(
+        &self,
+        moved: &[ProxyId],
+        distance: f32,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        mut visit: F,
+    ) -> Result<(), SpatialError>
+    where
+        F: FnMut(K, K) -> ControlFlow<()>,
+    {
+        let exact = check_distance(distance)?;
+        let mut sorted = std::mem::take(&mut ws.moved);
+        sorted.clear();
+        for id in moved {
+            self.get(*id)?;
+            sorted.push(id.index());
+        }
+        sorted.sort_unstable();
+        sorted.dedup();
+        for &m in &sorted {
+            let (key_m, box_m) = self.get(self.handle_of(m)).expect("checked above");
+            let mut inner = ControlFlow::Continue(());
+            self.visit_overlapping_proxies(&reach(&box_m, distance), ws, |c, box_c| {
+                // A pair of two moved entries is reported from the lower one.
+                if c == m || (c < m && sorted.binary_search(&c).is_ok()) {
+                    return ControlFlow::Continue(());
+                }
+                if mode.accepts(&box_m, box_c, exact) {
+                    let key_c = self.key_of(c);
+                    inner = visit(key_m.min(key_c), key_m.max(key_c));
+                    return inner;
+                }
+                ControlFlow::Continue(())
+            });
+            if inner.is_break() {
+                break;
+            }
+        }
+        ws.moved = sorted;
+        Ok(())
+    }
+}

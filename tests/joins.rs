@@ -1,0 +1,219 @@
+//! Distance joins against the oracle: random grid scenes where boxes touch
+//! and gaps are exact, the incremental "moved" join, and the join hard cases
+//! of SEMANTICS.md.
+
+mod common;
+
+use std::collections::BTreeSet;
+
+use bevy_rtree::oracle::BruteForce;
+use bevy_rtree::{Aabb, JoinMode, ProxyId, QueryWorkspace, RTree, SpatialError};
+use glam::Vec3;
+use proptest::prelude::*;
+
+const MODES: [JoinMode; 2] = [JoinMode::Euclidean, JoinMode::Chebyshev];
+
+fn build<const W: usize>(
+    boxes: &[Aabb],
+    first_key: u32,
+) -> (RTree<u32, W>, BruteForce<u32>, Vec<ProxyId>) {
+    let mut tree = RTree::<u32, W>::with_settings(Default::default()).unwrap();
+    let mut oracle = BruteForce::default();
+    let mut ids = Vec::new();
+    for (i, b) in boxes.iter().enumerate() {
+        ids.push(tree.insert(first_key + i as u32, *b).unwrap());
+        oracle.insert(first_key + i as u32, *b);
+    }
+    (tree, oracle, ids)
+}
+
+fn distance() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        Just(0.0f32),
+        (1i32..=8).prop_map(|d| d as f32 * 0.25),
+        Just(1.3f32)
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn self_joins_match_the_oracle(boxes in prop::collection::vec(common::grid_box(), 0..250), d in distance()) {
+        let (tree, oracle, _) = build::<4>(&boxes, 0);
+        for mode in MODES {
+            let pairs = tree.self_join(d, mode).unwrap();
+            prop_assert_eq!(&pairs, &oracle.self_join(d, mode).unwrap());
+            // Each unordered pair once, never an entry with itself.
+            prop_assert!(pairs.windows(2).all(|w| w[0] != w[1]));
+            prop_assert!(pairs.iter().all(|(a, b)| a < b));
+        }
+        // Chebyshev is a superset of Euclidean.
+        let exact: BTreeSet<_> = tree.self_join(d, JoinMode::Euclidean).unwrap().into_iter().collect();
+        let fast: BTreeSet<_> = tree.self_join(d, JoinMode::Chebyshev).unwrap().into_iter().collect();
+        prop_assert!(exact.is_subset(&fast));
+    }
+
+    #[test]
+    fn cross_joins_match_the_oracle(
+        a in prop::collection::vec(common::grid_box(), 0..200),
+        b in prop::collection::vec(common::grid_box(), 0..60),
+        d in distance(),
+    ) {
+        let (ta, oa, _) = build::<8>(&a, 0);
+        let (tb, ob, _) = build::<8>(&b, 10_000);
+        for mode in MODES {
+            prop_assert_eq!(ta.cross_join(&tb, d, mode).unwrap(), oa.cross_join(&ob, d, mode).unwrap());
+            let mut swapped: Vec<(u32, u32)> = tb.cross_join(&ta, d, mode).unwrap().into_iter().map(|(x, y)| (y, x)).collect();
+            swapped.sort_unstable();
+            prop_assert_eq!(swapped, oa.cross_join(&ob, d, mode).unwrap());
+        }
+    }
+
+    #[test]
+    fn moved_joins_report_exactly_the_pairs_of_moved_entries(
+        boxes in prop::collection::vec(common::grid_box(), 1..200),
+        picks in prop::collection::vec(any::<usize>(), 0..20),
+        d in distance(),
+    ) {
+        let (tree, oracle, ids) = build::<4>(&boxes, 0);
+        let moved: Vec<ProxyId> = picks.iter().map(|p| ids[p % ids.len()]).collect();
+        let moved_keys: BTreeSet<u32> = moved.iter().map(|id| tree.get(*id).unwrap().0).collect();
+        for mode in MODES {
+            let mut got = Vec::new();
+            tree.visit_self_join_moved(&moved, d, mode, &mut QueryWorkspace::default(), |a, b| {
+                got.push((a, b));
+                std::ops::ControlFlow::Continue(())
+            }).unwrap();
+            got.sort_unstable();
+            let expected: Vec<(u32, u32)> = oracle
+                .self_join(d, mode)
+                .unwrap()
+                .into_iter()
+                .filter(|(a, b)| moved_keys.contains(a) || moved_keys.contains(b))
+                .collect();
+            prop_assert_eq!(got, expected);
+        }
+    }
+}
+
+/// Two boxes (keys 0 and 1) among 1,000 distractors far from them.
+fn pair_world(a: Aabb, b: Aabb) -> (RTree<u32>, BruteForce<u32>) {
+    let mut rng = bevy_rtree::scene::SceneRng::new(13);
+    let mut boxes = vec![a, b];
+    while boxes.len() < 1_002 {
+        let c = Vec3::new(
+            rng.range(100.0, 400.0),
+            rng.range(-50.0, 50.0),
+            rng.range(-50.0, 50.0),
+        );
+        boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
+    }
+    let (tree, oracle, _) = build::<8>(&boxes, 0);
+    (tree, oracle)
+}
+
+/// Whether 0 and 1 pair at distance `d` in `mode`; also checks the whole
+/// answer against the oracle.
+fn pairs(a: Aabb, b: Aabb, d: f32, mode: JoinMode) -> bool {
+    let (tree, oracle) = pair_world(a, b);
+    let got = tree.self_join(d, mode).unwrap();
+    assert_eq!(got, oracle.self_join(d, mode).unwrap());
+    got.contains(&(0, 1))
+}
+
+#[test]
+fn a_gap_of_exactly_d_pairs() {
+    let a = common::aabb([0.0; 3], [1.0; 3]);
+    let b = common::aabb([3.0, 0.0, 0.0], [4.0, 1.0, 1.0]);
+    for mode in MODES {
+        assert!(pairs(a, b, 2.0, mode));
+        assert!(!pairs(a, b, 2f32.next_down(), mode));
+    }
+}
+
+#[test]
+fn a_diagonal_gap_separates_the_modes() {
+    let a = common::aabb([0.0; 3], [1.0; 3]);
+    let b = common::aabb([2.0, 2.0, 0.0], [3.0, 3.0, 1.0]); // gap (1, 1, 0): sqrt(2) apart
+    assert!(!pairs(a, b, 1.0, JoinMode::Euclidean));
+    assert!(pairs(a, b, 1.0, JoinMode::Chebyshev));
+    assert!(!pairs(a, b, 1.4, JoinMode::Euclidean));
+    assert!(pairs(a, b, 1.4, JoinMode::Chebyshev));
+    assert!(pairs(a, b, 1.5, JoinMode::Euclidean));
+    let c = common::aabb([4.0, 5.0, 0.0], [5.0, 6.0, 1.0]); // gap (3, 4, 0): 5 apart
+    assert!(pairs(a, c, 5.0, JoinMode::Euclidean));
+    assert!(!pairs(a, c, 4.99, JoinMode::Euclidean));
+}
+
+#[test]
+fn touching_and_identical_boxes_pair_at_zero() {
+    let a = common::aabb([0.0; 3], [1.0; 3]);
+    let touching = common::aabb([1.0, 0.0, 0.0], [2.0, 1.0, 1.0]);
+    let corner = common::aabb([1.0, 1.0, 1.0], [2.0, 2.0, 2.0]);
+    for mode in MODES {
+        assert!(pairs(a, touching, 0.0, mode));
+        assert!(pairs(a, corner, 0.0, mode));
+        let (tree, _) = pair_world(a, a);
+        let got = tree.self_join(0.0, mode).unwrap();
+        assert_eq!(
+            got.iter().filter(|p| **p == (0, 1)).count(),
+            1,
+            "identical boxes: one pair"
+        );
+        assert!(
+            got.iter().all(|(x, y)| x != y),
+            "never an entry with itself"
+        );
+    }
+}
+
+#[test]
+fn boxes_one_ulp_apart_far_out() {
+    let x = 1e5f32;
+    let a = common::aabb([x - 1.0, 0.0, 0.0], [x, 1.0, 1.0]);
+    let b = common::aabb([x.next_up(), 0.0, 0.0], [x + 1.0, 1.0, 1.0]);
+    let ulp = x.next_up() - x;
+    for mode in MODES {
+        assert!(!pairs(a, b, 0.0, mode));
+        assert!(pairs(a, b, ulp, mode));
+    }
+}
+
+#[test]
+fn invalid_distances_are_refused() {
+    let (tree, oracle) = pair_world(
+        common::aabb([0.0; 3], [1.0; 3]),
+        common::aabb([2.0; 3], [3.0; 3]),
+    );
+    for d in [f32::NAN, -1.0, f32::INFINITY, f32::NEG_INFINITY] {
+        for mode in MODES {
+            assert_eq!(tree.self_join(d, mode), Err(SpatialError::InvalidDistance));
+            assert_eq!(
+                tree.cross_join(&tree, d, mode),
+                Err(SpatialError::InvalidDistance)
+            );
+            assert_eq!(
+                oracle.self_join(d, mode),
+                Err(SpatialError::InvalidDistance)
+            );
+        }
+    }
+}
+
+#[test]
+fn the_standard_scene_joins_match_the_sweep() {
+    let scene = bevy_rtree::scene::TownScene::new(20_000, 21);
+    let (all, all_oracle, _) = build::<8>(scene.boxes(), 0);
+    let got = all.self_join(0.0, JoinMode::Euclidean).unwrap();
+    assert!(!got.is_empty());
+    assert_eq!(got, all_oracle.self_join(0.0, JoinMode::Euclidean).unwrap());
+    let enemies = &scene.boxes()[0..2_000];
+    let barrels = &scene.boxes()[2_000..3_000];
+    let (te, oe, _) = build::<8>(enemies, 0);
+    let (tb, ob, _) = build::<8>(barrels, 2_000);
+    assert_eq!(
+        te.cross_join(&tb, 5.0, JoinMode::Euclidean).unwrap(),
+        oe.cross_join(&ob, 5.0, JoinMode::Euclidean).unwrap()
+    );
+}
