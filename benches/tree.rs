@@ -1,5 +1,5 @@
 //! Side-by-side benchmark of `bevy_rtree` against its peers on the standard
-//! "town" scene (see /work/shared/BENCHMARK.md): rstar 0.14, parry3d 0.31's
+//! "town" scene (`bevy_rtree::scene::TownScene`): rstar 0.14, parry3d 0.31's
 //! `Bvh`, and the flat / brute-force lower and upper limits.
 //!
 //! Groups:

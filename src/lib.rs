@@ -1,9 +1,9 @@
 //! # bevy_rtree
 //!
 //! A wide, dynamic R-tree that keeps a spatial index of a game's entities
-//! current as they move, and answers the queries a frame needs: box and point
-//! overlap now, with frustum culling, batched raycasts and spatial joins built
-//! on the same tree.
+//! current as they move, and answers the queries a frame needs: frustum
+//! culling for several views in one traversal, batched raycasts (first, all or
+//! any hit), self and cross distance joins, and box and point overlap.
 //!
 //! ```
 //! use bevy_rtree::{Aabb, RTree};
@@ -36,17 +36,63 @@
 //!   error, never a panic. Enlarged ("fat") bounds are internal: acceptance
 //!   of an entry always uses its exact current box.
 //! - **Rays** ([`Ray`]) are closed segments `origin + t * dir`, `0 <= t <=
-//!   max_t`; `t` is in units of `|dir|`. Direction components below
-//!   `f32::MIN_POSITIVE` in magnitude become `+0.0`; a zero direction, a
-//!   non-finite origin or a negative / NaN `max_t` is an error.
-//! - **Frustums** ([`Frustum`]) are up to six eye-relative half-spaces; a box
-//!   is visible in conservative mode iff its furthest corner along every
-//!   plane normal is strictly inside.
-//! - **Distances** between boxes are Euclidean gaps computed in `f64`; a
-//!   join distance must be finite and `>= 0`.
+//!   max_t`; `t` is in units of `|dir|` (not normalised for you). Direction
+//!   components below `f32::MIN_POSITIVE` in magnitude become `+0.0`; a zero
+//!   direction, a non-finite origin or a negative / NaN `max_t` is an error.
+//!   A ray hits a box by the slab test written with explicit comparisons
+//!   (never `min`/`max`, whose NaN handling differs between targets); the
+//!   entry `t` is `0` when the origin is inside or on the box. Grazing a face,
+//!   an edge or a corner is a hit.
+//! - **First hit** is the hit with the smallest `(t, key)`; **all hits** are
+//!   sorted by `(t, key)` and an optional limit cuts that list; **any hit**
+//!   says whether one exists. In a batch, slot `i` answers ray `i` alone; an
+//!   invalid ray gets an error in its own slot. Answers never depend on batch
+//!   order, ray order or tree shape.
+//! - **Frustums** ([`Frustum`]) are up to six half-spaces relative to an eye;
+//!   `normal = 0, offset = +inf` is an inactive plane that never culls. In
+//!   conservative mode a box is visible iff for every plane
+//!   `dot(n, p - eye) + offset > 0` with `p` its corner furthest along `n`:
+//!   a box touching a plane from outside is culled. Exact mode also requires
+//!   that no separating axis exists (computed in `f64`), and sees nothing in
+//!   a frustum whose open volume is empty.
+//! - **Joins**: the distance between two closed boxes is the Euclidean norm
+//!   of the per-axis gaps, in `f64`. A pair qualifies iff that distance is
+//!   `<= d` (so `d = 0` pairs touching boxes), or, in Chebyshev mode, iff
+//!   every gap is `<= d`. `d` must be finite and `>= 0`. A self join reports
+//!   each unordered pair of distinct entries once as `(lo, hi)` by key; a
+//!   cross join reports `(a, b)` with `a` from the first tree, `b` from the
+//!   second, `a != b`. Lists are unordered unless a method says sorted.
 //! - **Time**: a query sees the entries as of the last completed mutation; a
 //!   removed entry never appears again. Answers are a pure function of the
 //!   live `(key, box)` set and the query.
+//! - **Validation**: [`RTree::validate`] checks links, reachability, bound
+//!   containment, fan-out, equal leaf depth, entry counts, stored boxes and
+//!   the node pool's free list.
+//!
+//! ## The queries
+//!
+//! | family | core (visitor) | conveniences |
+//! |---|---|---|
+//! | box / point overlap | [`RTree::visit_overlapping`] | `overlapping`, `overlapping_into`, `any_overlapping`, `containing_point` |
+//! | frustum culling | [`RTree::visit_visible`] (up to 8 views per traversal) | `visible`, `visible_into` |
+//! | raycasts | [`RTree::visit_ray`], [`RTree::cast_rays`] (batched) | `cast_ray`, `cast_ray_all`, `ray_hits_any` |
+//! | distance joins | [`RTree::visit_self_join`], [`RTree::visit_cross_join`], [`RTree::visit_self_join_moved`] | `self_join`, `cross_join`, `*_into` |
+//!
+//! Every query takes a [`QueryWorkspace`] (or makes one): keep one per
+//! system and a frame's queries do not allocate. Its [`QueryStats`] count
+//! nodes visited and entries tested.
+//!
+//! ## Accuracy options
+//!
+//! Two knobs trade precision for time; neither ever drops a right answer:
+//! - [`CullMode::Conservative`] (default) may report a large box near a
+//!   frustum edge that is really outside; [`CullMode::Exact`] removes those
+//!   with a separating-axis test in `f64`.
+//! - [`JoinMode::Chebyshev`] reports pairs whose gap is within `d` on every
+//!   axis, a superset of the exact [`JoinMode::Euclidean`] pairs (default).
+//!
+//! The enlarged-bounds settings ([`TreeSettings`]) trade update time against
+//! query work only: answers stay exact.
 //!
 //! ## Layout
 //!

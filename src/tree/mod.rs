@@ -1,8 +1,8 @@
 //! The wide, dynamic R-tree.
 //!
 //! One operation per file, all as `impl RTree` blocks:
-//! - [`node`]: the structure-of-arrays node and its lane tests;
-//! - [`handle`]: stable [`ProxyId`] handles and the per-entry record;
+//! - `node`: the structure-of-arrays node and its lane tests;
+//! - `handle`: stable [`ProxyId`] handles and the per-entry record;
 //! - `insert`, `split`: choose-subtree and R*-style splits;
 //! - `remove`: removal with condensing and reinsertion of orphans;
 //! - `update`: moves, absorbed by enlarged bounds when small;
