@@ -290,16 +290,7 @@ fn a_one_centimetre_box_two_centimetres_inside_stays_visible_a_million_metres_ou
 
 #[test]
 fn many_views_in_one_traversal_match_single_views() {
-    let scene = bevy_rtree::scene::TownScene::new(20_000, 3);
-    let mut tree = RTree::new();
-    tree.insert_bulk(
-        scene
-            .boxes()
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (i as u32, *b)),
-    )
-    .unwrap();
+    let (_, tree, _) = common::town_tree(20_000, 3);
     let views: Vec<Frustum> = (0..11)
         .map(|i| {
             let rotation = Quat::from_euler(EulerRot::YXZ, i as f32 * 0.6, -0.2, 0.0);

@@ -286,16 +286,7 @@ fn equal_t_ties_resolve_to_the_smallest_key() {
 
 #[test]
 fn batches_of_the_standard_scene_match_single_rays() {
-    let mut scene = bevy_rtree::scene::TownScene::new(20_000, 4);
-    let mut tree = RTree::new();
-    tree.insert_bulk(
-        scene
-            .boxes()
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (i as u32, *b)),
-    )
-    .unwrap();
+    let (mut scene, tree, _) = common::town_tree(20_000, 4);
     let mut rays = scene.incoherent_rays(300);
     rays.extend(scene.coherent_rays());
     let mut ws = QueryWorkspace::default();

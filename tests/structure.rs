@@ -184,20 +184,9 @@ fn small_moves_are_absorbed_without_restructuring() {
 
 #[test]
 fn bulk_load_gives_an_optimal_height_and_optimize_keeps_it_valid() {
-    let mut tree = RTree::new();
-    let scene = bevy_rtree::scene::TownScene::new(20_000, 7);
-    let ids = tree
-        .insert_bulk(
-            scene
-                .boxes()
-                .iter()
-                .enumerate()
-                .map(|(i, b)| (i as u32, *b)),
-        )
-        .unwrap();
+    let (mut scene, mut tree, ids) = common::town_tree(20_000, 7);
     tree.validate().unwrap();
     assert_eq!(tree.height(), optimal_height(20_000, 8));
-    let mut scene = scene;
     for _ in 0..30 {
         let moved = scene.advance_frame().to_vec();
         for i in moved {

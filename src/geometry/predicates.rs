@@ -87,26 +87,31 @@ pub(crate) fn plane_value(normal: Vec3, offset: f32, eye: Vec3, p: Vec3) -> f32 
 /// the box corner furthest along the normal is strictly inside.
 #[inline]
 pub(crate) fn frustum_conservative(frustum: &Frustum, aabb: &Aabb) -> bool {
-    let eye = frustum.eye();
-    frustum.planes().iter().all(|plane| {
-        if plane.is_inactive() {
-            return true;
-        }
-        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), aabb.max, aabb.min);
-        plane_value(plane.normal, plane.offset, eye, p) > 0.0
-    })
+    corner_inside_every_plane(frustum, aabb, true)
 }
 
 /// Whether the box lies strictly inside every active plane: its corner
 /// *nearest* along each normal is inside. Such a box is visible in both modes.
 #[inline]
 pub(crate) fn frustum_contains(frustum: &Frustum, aabb: &Aabb) -> bool {
+    corner_inside_every_plane(frustum, aabb, false)
+}
+
+/// For every active plane, whether the box corner furthest along the normal
+/// (`furthest`) or nearest to it is strictly inside.
+#[inline]
+fn corner_inside_every_plane(frustum: &Frustum, aabb: &Aabb, furthest: bool) -> bool {
     let eye = frustum.eye();
+    let (along, against) = if furthest {
+        (aabb.max, aabb.min)
+    } else {
+        (aabb.min, aabb.max)
+    };
     frustum.planes().iter().all(|plane| {
         if plane.is_inactive() {
             return true;
         }
-        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), aabb.min, aabb.max);
+        let p = Vec3::select(plane.normal.cmpge(Vec3::ZERO), along, against);
         plane_value(plane.normal, plane.offset, eye, p) > 0.0
     })
 }

@@ -59,6 +59,54 @@ fn used_lanes<const W: usize>(node: &Node<W>) -> u32 {
     }
 }
 
+/// The used lanes of `node` whose box can be within `distance` of `bound`.
+#[inline]
+fn reachable_lanes<const W: usize>(node: &Node<W>, bound: &Aabb, distance: f32) -> u32 {
+    node.overlap_mask(&reach(bound, distance)) & used_lanes(node)
+}
+
+/// The lane-pair step both joins share, for two nodes at the same level: for
+/// each lane `i` of `na`, the lanes `j` of `nb` that can still be within
+/// `distance`. Pairs of internal nodes go on the join stack; pairs of leaf
+/// entries that pass the exact predicate go to `emit(i, j)`. With
+/// `same_node`, each unordered lane pair is taken once and every child is
+/// also paired with itself.
+#[allow(clippy::too_many_arguments)]
+fn join_lane_pairs<const W: usize>(
+    na: &Node<W>,
+    nb: &Node<W>,
+    same_node: bool,
+    distance: f32,
+    exact: f64,
+    mode: JoinMode,
+    ws: &mut QueryWorkspace,
+    mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    for i in 0..na.len() {
+        let lane_box = na.lane_box(i);
+        let mut mask = reachable_lanes(nb, &lane_box, distance);
+        if same_node {
+            mask &= !((2u32 << i) - 1);
+            if !na.is_leaf() {
+                ws.join_stack.push((na.child[i], na.child[i]));
+            }
+        }
+        if na.is_leaf() {
+            ws.stats.entries_tested += mask.count_ones() as u64;
+        }
+        while mask != 0 {
+            let j = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            if !na.is_leaf() {
+                ws.join_stack.push((na.child[i], nb.child[j]));
+            } else if mode.accepts(&lane_box, &nb.lane_box(j), exact) {
+                emit(i, j)?;
+            }
+        }
+    }
+    ControlFlow::Continue(())
+}
+
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Calls `visit(lo, hi)` once for every unordered pair of distinct
     /// entries within `distance` (`lo <= hi` by key), until `visit` breaks.
@@ -93,35 +141,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         while let Some((a, b)) = ws.join_stack.pop() {
             ws.stats.nodes_visited += 1;
             let (na, nb) = (self.node(a), self.node(b));
-            let used_b = used_lanes(nb);
-            for i in 0..na.len() {
-                let lane_box = na.lane_box(i);
-                let mut mask = nb.overlap_mask(&reach(&lane_box, distance)) & used_b;
-                if a == b {
-                    // Within one node: each unordered pair of lanes once,
-                    // and each child with itself.
-                    mask &= !((2u32 << i) - 1);
-                    if !na.is_leaf() {
-                        ws.join_stack.push((na.child[i], na.child[i]));
-                    }
-                }
-                if na.is_leaf() {
-                    ws.stats.entries_tested += mask.count_ones() as u64;
-                }
-                while mask != 0 {
-                    let j = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    if na.is_leaf() {
-                        if mode.accepts(&lane_box, &nb.lane_box(j), exact) {
-                            let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
-                            if visit(ka.min(kb), ka.max(kb)).is_break() {
-                                return Ok(());
-                            }
-                        }
-                    } else {
-                        ws.join_stack.push((na.child[i], nb.child[j]));
-                    }
-                }
+            let flow = join_lane_pairs(na, nb, a == b, distance, exact, mode, ws, |i, j| {
+                let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
+                visit(ka.min(kb), ka.max(kb))
+            });
+            if flow.is_break() {
+                return Ok(());
             }
         }
         Ok(())
@@ -175,8 +200,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let (na, nb) = (self.node(a), other.node(b));
             // Descend the taller side alone until the levels meet.
             if na.level > nb.level {
-                let bound = reach(&nb.lanes_union(), distance);
-                let mut mask = na.overlap_mask(&bound) & used_lanes(na);
+                let mut mask = reachable_lanes(na, &nb.lanes_union(), distance);
                 while mask != 0 {
                     let i = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
@@ -185,8 +209,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 continue;
             }
             if nb.level > na.level {
-                let bound = reach(&na.lanes_union(), distance);
-                let mut mask = nb.overlap_mask(&bound) & used_lanes(nb);
+                let mut mask = reachable_lanes(nb, &na.lanes_union(), distance);
                 while mask != 0 {
                     let j = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
@@ -194,28 +217,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 }
                 continue;
             }
-            let used_b = used_lanes(nb);
-            for i in 0..na.len() {
-                let lane_box = na.lane_box(i);
-                let mut mask = nb.overlap_mask(&reach(&lane_box, distance)) & used_b;
-                if na.is_leaf() {
-                    ws.stats.entries_tested += mask.count_ones() as u64;
+            let flow = join_lane_pairs(na, nb, false, distance, exact, mode, ws, |i, j| {
+                let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
+                if ka == kb {
+                    return ControlFlow::Continue(());
                 }
-                while mask != 0 {
-                    let j = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    if na.is_leaf() {
-                        let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
-                        if ka != kb
-                            && mode.accepts(&lane_box, &nb.lane_box(j), exact)
-                            && visit(ka, kb).is_break()
-                        {
-                            return Ok(());
-                        }
-                    } else {
-                        ws.join_stack.push((na.child[i], nb.child[j]));
-                    }
-                }
+                visit(ka, kb)
+            });
+            if flow.is_break() {
+                return Ok(());
             }
         }
         Ok(())
@@ -281,7 +291,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         sorted.sort_unstable();
         sorted.dedup();
         for &m in &sorted {
-            let (key_m, box_m) = self.get(self.handle_of(m)).expect("checked above");
+            let (key_m, box_m) = self.get(self.handle(m)).expect("checked above");
             let mut inner = ControlFlow::Continue(());
             self.visit_overlapping_proxies(&reach(&box_m, distance), ws, |c, box_c| {
                 // A pair of two moved entries is reported from the lower one.

@@ -279,11 +279,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// The live handle of a proxy index.
-    pub(crate) fn handle_of(&self, proxy: u32) -> ProxyId {
-        self.handle(proxy)
-    }
-
-    fn handle(&self, proxy: u32) -> ProxyId {
+    pub(crate) fn handle(&self, proxy: u32) -> ProxyId {
         ProxyId {
             index: proxy,
             generation: self.proxies[proxy as usize].generation,

@@ -1,7 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
-use bevy_rtree::Aabb;
+use bevy_rtree::scene::TownScene;
+use bevy_rtree::{Aabb, ProxyId, RTree};
 use glam::Vec3;
 use proptest::prelude::*;
 
@@ -74,4 +75,21 @@ pub fn invalid_boxes() -> Vec<Aabb> {
         },
         Aabb::INVERTED,
     ]
+}
+
+/// A town scene of `count` entities and a tree bulk-loaded from it, keyed by
+/// entity index, with the handle of each entity.
+pub fn town_tree(count: usize, seed: u64) -> (TownScene, RTree<u32>, Vec<ProxyId>) {
+    let scene = TownScene::new(count, seed);
+    let mut tree = RTree::new();
+    let ids = tree
+        .insert_bulk(
+            scene
+                .boxes()
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (i as u32, *b)),
+        )
+        .expect("scene boxes are valid");
+    (scene, tree, ids)
 }
