@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::TownScene;
-use bevy_rtree::{Aabb, QueryWorkspace, RTree};
+use bevy_rtree::{Aabb, QueryWorkspace};
 use glam::Vec3;
 
 fn arg(name: &str, default: usize) -> usize {
@@ -26,16 +26,7 @@ fn main() {
     let mut scene = TownScene::new(count, 2024);
 
     let start = Instant::now();
-    let mut tree = RTree::new();
-    let ids = tree
-        .insert_bulk(
-            scene
-                .boxes()
-                .iter()
-                .enumerate()
-                .map(|(i, b)| (i as u32, *b)),
-        )
-        .expect("scene boxes are valid");
+    let (mut tree, ids) = scene.bulk_loaded_tree();
     println!(
         "town: {count} entities bulk-loaded in {:.2} ms (height {}, {} nodes)",
         ms(start.elapsed()),

@@ -10,6 +10,7 @@
 use glam::{EulerRot, Quat, Vec3};
 
 use crate::geometry::{Aabb, Frustum, Ray};
+use crate::tree::{ProxyId, RTree};
 
 /// Extent of the world: x and z in `[0, 2000]` m, y in `[0, 100]` m.
 pub const WORLD_MAX: Vec3 = Vec3::new(2000.0, 100.0, 2000.0);
@@ -171,6 +172,16 @@ impl TownScene {
     /// Every entity's current box, indexed by entity.
     pub fn boxes(&self) -> &[Aabb] {
         &self.boxes
+    }
+
+    /// A tree bulk-loaded from the current boxes, keyed by entity index, and
+    /// the handle of each entity (`ids[i]` for entity `i`).
+    pub fn bulk_loaded_tree(&self) -> (RTree<u32>, Vec<ProxyId>) {
+        let mut tree = RTree::new();
+        let ids = tree
+            .insert_bulk(self.boxes.iter().enumerate().map(|(i, b)| (i as u32, *b)))
+            .expect("scene boxes are valid");
+        (tree, ids)
     }
 
     /// Frames advanced so far.

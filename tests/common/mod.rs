@@ -81,15 +81,6 @@ pub fn invalid_boxes() -> Vec<Aabb> {
 /// entity index, with the handle of each entity.
 pub fn town_tree(count: usize, seed: u64) -> (TownScene, RTree<u32>, Vec<ProxyId>) {
     let scene = TownScene::new(count, seed);
-    let mut tree = RTree::new();
-    let ids = tree
-        .insert_bulk(
-            scene
-                .boxes()
-                .iter()
-                .enumerate()
-                .map(|(i, b)| (i as u32, *b)),
-        )
-        .expect("scene boxes are valid");
+    let (tree, ids) = scene.bulk_loaded_tree();
     (scene, tree, ids)
 }
