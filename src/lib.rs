@@ -77,6 +77,8 @@
 //! | frustum culling | [`RTree::visit_visible`] (up to 8 views per traversal) | `visible`, `visible_into` |
 //! | raycasts | [`RTree::visit_ray`], [`RTree::cast_rays`] (batched) | `cast_ray`, `cast_ray_all`, `ray_hits_any` |
 //! | distance joins | [`RTree::visit_self_join`], [`RTree::visit_cross_join`], [`RTree::visit_self_join_moved`] | `self_join`, `cross_join`, `*_into` |
+//! | sphere overlap / within radius (distance to the closed box `<= r`) | [`RTree::visit_sphere`] | `overlapping_sphere`, `overlapping_sphere_into`, `any_overlapping_sphere`, `within_radius`, `within_radius_into` |
+//! | k nearest neighbours (by `(distance, key)`, optional inclusive max distance) | [`RTree::visit_nearest`] (best first) | `nearest`, `nearest_into` |
 //!
 //! Every query takes a [`QueryWorkspace`] (or makes one): keep one per
 //! system and a frame's queries do not allocate. Its [`QueryStats`] count
@@ -110,7 +112,9 @@ pub mod scene;
 pub mod tree;
 
 pub use geometry::{Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, Ray, SpatialError};
-pub use query::{CullMode, JoinMode, QueryWorkspace, RayHit, RayMode, RayResults, oracle};
+pub use query::{
+    CullMode, JoinMode, Neighbor, QueryWorkspace, RayHit, RayMode, RayResults, oracle,
+};
 pub use tree::{
     InvariantViolation, MaintenanceStats, MoveKind, ProxyId, QueryStats, RTree, TreeSettings,
 };

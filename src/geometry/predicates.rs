@@ -141,6 +141,49 @@ pub(crate) fn box_distance_sq(a: &Aabb, b: &Aabb) -> f64 {
     sum
 }
 
+/// Squared Euclidean distance from a point to a closed box, in `f64`: `0`
+/// when the point is inside or on the box. The point is the zero-extent box
+/// at `point`, so this is [`box_distance_sq`] and agrees with the joins.
+///
+/// Sphere overlap, within-radius and nearest-neighbour answers are all decided
+/// by this one value. Applied to a node's bound it never exceeds the value for
+/// any box inside that bound: each per-axis difference, square and sum is
+/// rounded monotonically, so pruning by it never loses an answer.
+#[inline]
+pub(crate) fn point_box_distance_sq(point: Vec3, aabb: &Aabb) -> f64 {
+    box_distance_sq(
+        &Aabb {
+            min: point,
+            max: point,
+        },
+        aabb,
+    )
+}
+
+/// Checks a query point: finite with every `|coordinate| <= MAX_COORD`, the
+/// same rule as a box corner, so a bad point is `SpatialError::InvalidBox`.
+pub(crate) fn check_point(point: Vec3) -> Result<(), super::SpatialError> {
+    Aabb::from_point(point).map(|_| ())
+}
+
+/// Checks a radius or maximum distance (finite, `>= 0`) and returns its
+/// square in `f64`. The square is exact: an `f32` has 24 significant bits,
+/// its square at most 48, well within `f64`'s 53 and its exponent range.
+pub(crate) fn check_radius_sq(radius: f32) -> Result<f64, super::SpatialError> {
+    let r = check_distance(radius)?;
+    Ok(r * r)
+}
+
+/// The closed-sphere / closed-box predicate: they share a point iff the
+/// box's squared distance from the centre is `<= radius²`. Returns that
+/// squared distance when they do. Within-radius and a nearest-neighbour
+/// search with a maximum distance accept entries by this same test.
+#[inline]
+pub(crate) fn sphere_box_distance_sq(center: Vec3, radius_sq: f64, aabb: &Aabb) -> Option<f64> {
+    let d2 = point_box_distance_sq(center, aabb);
+    if d2 <= radius_sq { Some(d2) } else { None }
+}
+
 /// The gap between two boxes along one axis (0 when their ranges overlap).
 #[inline]
 pub(crate) fn axis_gap(a: &Aabb, b: &Aabb, axis: usize) -> f64 {

@@ -8,12 +8,15 @@
 
 mod frustum;
 mod join;
+mod nearest;
 pub mod oracle;
 mod overlap;
 mod ray;
+mod sphere;
 mod workspace;
 
 pub use frustum::{CullMode, FRUSTUMS_PER_PASS};
 pub use join::JoinMode;
+pub use nearest::Neighbor;
 pub use ray::{RayHit, RayMode, RayResults};
 pub use workspace::QueryWorkspace;

@@ -9,7 +9,7 @@ use glam::Vec3;
 use crate::geometry::predicates;
 use crate::geometry::predicates::RayTest;
 use crate::geometry::{Aabb, Frustum, FrustumSat, Ray, SpatialError};
-use crate::query::{CullMode, JoinMode, RayHit};
+use crate::query::{CullMode, JoinMode, Neighbor, RayHit};
 
 /// A flat list of entries answering every query by testing all of them.
 ///
@@ -116,6 +116,111 @@ impl<K: Copy + Ord> BruteForce<K> {
     /// The first hit of `ray`: the smallest `(t, key)`.
     pub fn ray_first(&self, ray: &Ray) -> Result<Option<RayHit<K>>, SpatialError> {
         Ok(self.ray_hits(ray)?.first().copied())
+    }
+
+    /// Sorted keys of entries whose closed box shares a point with the
+    /// closed sphere: squared distance from `center` `<= radius²`, in `f64`.
+    /// Errors as [`RTree::visit_sphere`](crate::RTree::visit_sphere).
+    ///
+    /// ```
+    /// use bevy_rtree::oracle::BruteForce;
+    /// use bevy_rtree::Aabb;
+    /// use glam::Vec3;
+    ///
+    /// let mut all = BruteForce::default();
+    /// all.insert(1u32, Aabb::new(Vec3::new(2.0, 0.0, 0.0), Vec3::new(3.0, 1.0, 1.0))?);
+    /// assert_eq!(all.overlapping_sphere(Vec3::ZERO, 2.0)?, [1]);
+    /// assert!(all.overlapping_sphere(Vec3::ZERO, 1.5)?.is_empty());
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn overlapping_sphere(&self, center: Vec3, radius: f32) -> Result<Vec<K>, SpatialError> {
+        let mut out: Vec<K> = self
+            .within_radius(center, radius)?
+            .into_iter()
+            .map(|n| n.key)
+            .collect();
+        out.sort_unstable();
+        Ok(out)
+    }
+
+    /// Every entry within `radius` of `point` with its squared distance,
+    /// sorted by `(distance_sq, key)`: the sphere predicate.
+    ///
+    /// ```
+    /// use bevy_rtree::oracle::BruteForce;
+    /// use bevy_rtree::{Aabb, Neighbor};
+    /// use glam::Vec3;
+    ///
+    /// let mut all = BruteForce::default();
+    /// all.insert(4u32, Aabb::new(Vec3::new(3.0, 4.0, 0.0), Vec3::new(5.0, 5.0, 1.0))?);
+    /// assert_eq!(all.within_radius(Vec3::ZERO, 5.0)?, [Neighbor { key: 4, distance_sq: 25.0 }]);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn within_radius(
+        &self,
+        point: Vec3,
+        radius: f32,
+    ) -> Result<Vec<Neighbor<K>>, SpatialError> {
+        predicates::check_point(point)?;
+        let radius_sq = predicates::check_radius_sq(radius)?;
+        let mut out: Vec<Neighbor<K>> = self
+            .entries
+            .iter()
+            .filter_map(|(key, aabb)| {
+                predicates::sphere_box_distance_sq(point, radius_sq, aabb).map(|distance_sq| {
+                    Neighbor {
+                        key: *key,
+                        distance_sq,
+                    }
+                })
+            })
+            .collect();
+        out.sort_unstable_by(Neighbor::rank);
+        Ok(out)
+    }
+
+    /// The `k` entries nearest to `point`, sorted by `(distance_sq, key)`,
+    /// only those within `max_distance` (inclusive) if given: every entry
+    /// sorted, then cut. Errors as
+    /// [`RTree::nearest_into`](crate::RTree::nearest_into).
+    ///
+    /// ```
+    /// use bevy_rtree::oracle::BruteForce;
+    /// use bevy_rtree::Aabb;
+    /// use glam::Vec3;
+    ///
+    /// let mut all = BruteForce::default();
+    /// for key in [8u32, 2, 5] {
+    ///     all.insert(key, Aabb::new(Vec3::ONE, Vec3::splat(2.0))?);
+    /// }
+    /// let keys: Vec<u32> = all.nearest(Vec3::ZERO, 2, None)?.iter().map(|n| n.key).collect();
+    /// assert_eq!(keys, [2, 5]); // equal distances: smaller keys first
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn nearest(
+        &self,
+        point: Vec3,
+        k: usize,
+        max_distance: Option<f32>,
+    ) -> Result<Vec<Neighbor<K>>, SpatialError> {
+        if k == 0 {
+            return Err(SpatialError::InvalidCount);
+        }
+        predicates::check_point(point)?;
+        let limit = max_distance.map_or(Ok(f64::INFINITY), predicates::check_radius_sq)?;
+        let mut out: Vec<Neighbor<K>> = self
+            .entries
+            .iter()
+            .filter_map(|(key, aabb)| {
+                predicates::sphere_box_distance_sq(point, limit, aabb).map(|distance_sq| Neighbor {
+                    key: *key,
+                    distance_sq,
+                })
+            })
+            .collect();
+        out.sort_unstable_by(Neighbor::rank);
+        out.truncate(k);
+        Ok(out)
     }
 
     /// Sorted `(lo, hi)` pairs of distinct entries within `distance`, by a

@@ -36,6 +36,8 @@ pub struct QueryWorkspace {
     pub(crate) join_stack: Vec<(u32, u32)>,
     /// Sorted proxy indices of the moved entries of an incremental join.
     pub(crate) moved: Vec<u32>,
+    /// Best-first queue of nodes by squared distance (nearest neighbours).
+    pub(crate) nearest: std::collections::BinaryHeap<super::nearest::QueuedNode>,
     /// Per-ray state of batched raycasts.
     pub(crate) rays: super::ray::RayBatchScratch,
     pub(crate) stats: QueryStats,
