@@ -107,6 +107,7 @@
 #![warn(missing_docs)]
 
 pub mod geometry;
+pub mod plugin;
 pub mod query;
 pub mod scene;
 pub mod tree;

@@ -245,6 +245,24 @@ fn bad_rays_fail_in_their_own_slot_only() {
 }
 
 #[test]
+fn a_batch_of_only_bad_rays_on_a_deep_tree_reports_each_error() {
+    let (_, tree, _) = common::town_tree(2_000, 5);
+    assert!(tree.height() > 1, "the root must be an inner node");
+    let batch = [
+        ray([0.0; 3], [0.0; 3], 1.0),
+        ray([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], 1.0),
+    ];
+    for mode in [RayMode::First, RayMode::All { limit: None }, RayMode::Any] {
+        let mut out = RayResults::default();
+        tree.cast_rays(&batch, mode, &mut QueryWorkspace::default(), &mut out);
+        assert_eq!(out.len(), 2);
+        for i in 0..2 {
+            assert_eq!(out.any(i), Err(SpatialError::InvalidRay));
+        }
+    }
+}
+
+#[test]
 fn far_from_the_origin_hits_stay_exact() {
     let far = common::aabb([1e7, 0.0, 0.0], [1e7 + 1.0, 1.0, 1.0]);
     let tiny = common::aabb([1e5, 0.5, 0.5], [1e5 + 1e-6, 0.5 + 1e-6, 0.5 + 1e-6]);

@@ -23,9 +23,18 @@ use crate::query::{CullMode, JoinMode, Neighbor, RayHit};
 /// assert_eq!(all.overlapping(&Aabb::new(Vec3::ONE, Vec3::splat(2.0))?), [3]);
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct BruteForce<K> {
     entries: Vec<(K, Aabb)>,
+}
+
+// Not derived: an empty oracle needs no default key.
+impl<K> Default for BruteForce<K> {
+    fn default() -> Self {
+        BruteForce {
+            entries: Vec::new(),
+        }
+    }
 }
 
 impl<K: Copy + Ord> BruteForce<K> {

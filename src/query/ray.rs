@@ -42,10 +42,20 @@ pub enum RayMode {
 }
 
 /// The answers of a batch: slot `i` belongs to ray `i` (SEMANTICS S6).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct RayResults<K> {
     slots: Vec<Result<(Range<u32>, bool), SpatialError>>,
     hits: Vec<RayHit<K>>,
+}
+
+// Not derived: an empty result needs no default key.
+impl<K> Default for RayResults<K> {
+    fn default() -> Self {
+        RayResults {
+            slots: Vec::new(),
+            hits: Vec::new(),
+        }
+    }
 }
 
 impl<K: Copy> RayResults<K> {
@@ -338,7 +348,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         s.masks.clear();
         s.masks.resize(height * n, 0);
         let mut active = std::mem::take(&mut s.active);
-        self.batch_node(self.root(), &mut active, 0, mode, ws);
+        // A batch of only invalid rays has nothing to traverse with.
+        if !active.is_empty() {
+            self.batch_node(self.root(), &mut active, 0, mode, ws);
+        }
         ws.rays.active = active;
 
         // Gather answers slot by slot.

@@ -9,6 +9,12 @@ use super::bulk::{group_range, str_partition};
 use super::node::FREE_LEVEL;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Number of level-1 nodes that churn has marked for repair by
+    /// [`RTree::optimize`]; zero means `optimize` has nothing to do.
+    pub fn pending_repairs(&self) -> usize {
+        self.dirty.len()
+    }
+
     /// Repacks up to `budget` churned nodes and returns how many it repacked.
     ///
     /// Call it once per frame after the frame's updates (the ECS plugin does).

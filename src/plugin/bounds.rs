@@ -1,0 +1,55 @@
+//! The components that put an entity into the index.
+
+use bevy_ecs::prelude::*;
+
+use crate::geometry::Aabb;
+
+/// The entity's world box; adding it puts the entity into the index.
+///
+/// Set it yourself (or, with the `bevy` feature, let
+/// [`LocalBounds`](crate::plugin::LocalBounds) derive it from the
+/// `GlobalTransform`). Only entities whose `SpatialBounds` changed since the
+/// last frame touch the index. Removing the component, or despawning the
+/// entity, takes it out of every index at once, before any later query.
+///
+/// A box that is not valid (NaN, infinite, inverted, beyond
+/// [`MAX_COORD`](crate::MAX_COORD)) takes the entity *out* of the index until
+/// it gets a valid box again: an entity whose position is unknown is found by
+/// no query. The first time this happens a warning names the entity, and
+/// [`SpatialDiagnostics`](crate::plugin::SpatialDiagnostics) counts it every
+/// frame it is skipped.
+///
+/// ```
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::{Aabb, plugin::SpatialBounds};
+/// use glam::Vec3;
+///
+/// let mut world = World::new();
+/// let bounds = SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?);
+/// let entity = world.spawn(bounds).id();
+/// assert_eq!(world.get::<SpatialBounds>(entity), Some(&bounds));
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct SpatialBounds(pub Aabb);
+
+impl Default for SpatialBounds {
+    /// An inverted box: not indexed until a valid box is set.
+    fn default() -> Self {
+        SpatialBounds(Aabb::INVERTED)
+    }
+}
+
+/// Opt-out: an entity with this marker is in no index, whatever its
+/// [`SpatialBounds`]. Removing the marker puts it back on the next frame.
+///
+/// ```
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::plugin::{NoSpatialIndex, SpatialBounds};
+///
+/// let mut world = World::new();
+/// let hidden = world.spawn((SpatialBounds::default(), NoSpatialIndex)).id();
+/// assert!(world.get::<NoSpatialIndex>(hidden).is_some());
+/// ```
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NoSpatialIndex;

@@ -1,0 +1,163 @@
+//! Frustum culling for cameras: every frame, each culling camera gets the
+//! sorted list of the entities it sees, all cameras in one traversal.
+
+use std::marker::PhantomData;
+
+use bevy_ecs::prelude::*;
+use glam::{Quat, Vec3};
+
+use super::SpatialDiagnostics;
+use super::bounds::SpatialBounds;
+use super::index::SpatialIndex;
+use crate::geometry::{Frustum, SpatialError};
+use crate::query::{CullMode, QueryWorkspace};
+
+/// A view whose visible entities of layer `L` (all indexed entities by
+/// default) are listed in its [`VisibleEntityList`] every frame.
+///
+/// Culling runs only while at least one `CullingCamera<L>` exists; all
+/// cameras of a layer share one traversal of the tree (per eight cameras and
+/// per [`CullMode`]).
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::Aabb;
+/// use bevy_rtree::plugin::{CullingCamera, SpatialBounds, SpatialIndexPlugin, VisibleEntityList};
+/// use glam::{Quat, Vec3};
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// // Bevy's cameras look down -Z.
+/// let ahead = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::new(0.0, 0.0, -11.0), Vec3::new(1.0, 1.0, -10.0))?)).id();
+/// let behind = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::new(0.0, 0.0, 10.0), Vec3::new(1.0, 1.0, 11.0))?)).id();
+/// let camera = CullingCamera::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 16.0 / 9.0, 0.1, 100.0)?;
+/// let camera = app.world_mut().spawn(camera).id();
+/// app.update();
+/// let visible = app.world().get::<VisibleEntityList>(camera).unwrap();
+/// assert_eq!(visible.entities(), [ahead]);
+/// # let _ = behind;
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Component)]
+#[require(VisibleEntityList)]
+pub struct CullingCamera<L: Component = SpatialBounds> {
+    /// The view volume, relative to its eye (SEMANTICS S7).
+    pub frustum: Frustum,
+    /// Conservative (Bevy's convention, the default) or exact.
+    pub mode: CullMode,
+    _layer: PhantomData<fn() -> L>,
+}
+
+impl_layer_generic_traits!(CullingCamera<L> { frustum, mode });
+
+impl CullingCamera {
+    /// A camera over all indexed entities.
+    pub fn new(frustum: Frustum) -> Self {
+        CullingCamera::for_layer(frustum)
+    }
+
+    /// A perspective camera over all indexed entities, looking down its local
+    /// `-Z` (see [`Frustum::perspective`]).
+    pub fn perspective(
+        eye: Vec3,
+        rotation: Quat,
+        fov_y: f32,
+        aspect: f32,
+        near: f32,
+        far: f32,
+    ) -> Result<Self, SpatialError> {
+        Ok(CullingCamera::new(Frustum::perspective(
+            eye, rotation, fov_y, aspect, near, far,
+        )?))
+    }
+}
+
+impl<L: Component> CullingCamera<L> {
+    /// A camera that sees only the entities of layer `L` (register the layer
+    /// with [`add_spatial_layer`](super::SpatialAppExt::add_spatial_layer)).
+    pub fn for_layer(frustum: Frustum) -> Self {
+        CullingCamera {
+            frustum,
+            mode: CullMode::Conservative,
+            _layer: PhantomData,
+        }
+    }
+
+    /// The same camera with another [`CullMode`].
+    pub fn with_mode(mut self, mode: CullMode) -> Self {
+        self.mode = mode;
+        self
+    }
+}
+
+/// The entities a [`CullingCamera`] saw this frame, sorted by [`Entity`].
+///
+/// Refreshed every frame in
+/// [`SpatialIndexSystems::Queries`](super::SpatialIndexSystems::Queries); the
+/// list's allocation is reused from frame to frame.
+#[derive(Component, Clone, Debug, Default, PartialEq, Eq)]
+pub struct VisibleEntityList {
+    entities: Vec<Entity>,
+}
+
+impl VisibleEntityList {
+    /// The visible entities, sorted.
+    pub fn entities(&self) -> &[Entity] {
+        &self.entities
+    }
+
+    /// Whether `entity` is in the list (binary search).
+    pub fn contains(&self, entity: Entity) -> bool {
+        self.entities.binary_search(&entity).is_ok()
+    }
+}
+
+/// Scratch reused by the culling system from frame to frame.
+#[derive(Default)]
+pub(crate) struct CullingScratch {
+    workspace: QueryWorkspace,
+    frustums: Vec<Frustum>,
+    lists: Vec<Vec<Entity>>,
+    cameras: Vec<Entity>,
+}
+
+/// Culls every camera of layer `L`: one traversal per mode (and per eight
+/// cameras), then each camera's list is sorted and swapped into place.
+pub(crate) fn cull_cameras<L: Component>(
+    index: Res<SpatialIndex<L>>,
+    cameras: Query<(Entity, &CullingCamera<L>)>,
+    mut lists: Query<&mut VisibleEntityList, With<CullingCamera<L>>>,
+    mut scratch: Local<CullingScratch>,
+    mut diagnostics: ResMut<SpatialDiagnostics>,
+) {
+    let scratch = &mut *scratch;
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        scratch.frustums.clear();
+        scratch.cameras.clear();
+        for (entity, camera) in &cameras {
+            if camera.mode == mode {
+                scratch.frustums.push(camera.frustum);
+                scratch.cameras.push(entity);
+            }
+        }
+        if scratch.cameras.is_empty() {
+            continue;
+        }
+        let views = scratch.cameras.len();
+        if scratch.lists.len() < views {
+            scratch.lists.resize_with(views, Vec::new);
+        }
+        let out = &mut scratch.lists[..views];
+        out.iter_mut().for_each(Vec::clear);
+        index
+            .tree()
+            .visible_into(&scratch.frustums, mode, &mut scratch.workspace, out);
+        diagnostics.culling.record(views, &mut scratch.workspace);
+        for (view, &camera) in scratch.cameras.iter().enumerate() {
+            out[view].sort_unstable();
+            if let Ok(mut list) = lists.get_mut(camera) {
+                std::mem::swap(&mut list.entities, &mut out[view]);
+            }
+        }
+    }
+}

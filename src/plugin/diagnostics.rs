@@ -1,0 +1,114 @@
+//! What the plugin did this frame, so that cost (and its absence) can be
+//! seen and tested without a profiler.
+
+use bevy_ecs::prelude::*;
+
+use super::index::SyncCount;
+use crate::QueryWorkspace;
+
+/// Work done by one query family in one frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct QueryWork {
+    /// How many times the family's system ran (once per layer that has work).
+    pub runs: u32,
+    /// Queries answered: cameras culled, rays cast, joins computed.
+    pub queries: u64,
+    /// Tree nodes whose lanes were tested.
+    pub nodes_visited: u64,
+    /// Entries tested against the exact predicate.
+    pub entries_tested: u64,
+}
+
+impl QueryWork {
+    /// Adds one run's statistics, taken from its workspace.
+    pub(crate) fn record(&mut self, queries: usize, workspace: &mut QueryWorkspace) {
+        let stats = workspace.take_stats();
+        self.runs += 1;
+        self.queries += queries as u64;
+        self.nodes_visited += stats.nodes_visited;
+        self.entries_tested += stats.entries_tested;
+    }
+}
+
+/// How the indexes followed the entities this frame, summed over layers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SyncWork {
+    /// Sync passes that ran (one per layer with indexed entities or changes).
+    pub runs: u32,
+    /// Entities that entered an index.
+    pub inserted: u64,
+    /// Entities whose box changed in an index.
+    pub updated: u64,
+    /// Entities that left an index (despawn, component or marker removed,
+    /// opt-out, invalid box).
+    pub removed: u64,
+    /// Entities skipped because their box was invalid (see
+    /// [`SpatialBounds`](super::SpatialBounds)).
+    pub invalid_skipped: u64,
+}
+
+/// Repairs of degraded leaves this frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MaintenanceWork {
+    /// Maintenance passes that ran (only where a layer had something to repair).
+    pub runs: u32,
+    /// Nodes re-tiled.
+    pub nodes_repacked: u64,
+}
+
+/// Per-frame counters of what the plugin ran; reset at the start of every
+/// frame (in `First`).
+///
+/// A scene that has no culling camera shows `culling.runs == 0`, one without
+/// casters `rays.runs == 0`, and so on: the plugin only does the work a scene
+/// calls for.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::plugin::{SpatialDiagnostics, SpatialIndexPlugin};
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// app.update();
+/// let diagnostics = app.world().resource::<SpatialDiagnostics>();
+/// assert_eq!(diagnostics.culling.runs, 0);
+/// assert_eq!(diagnostics.rays.runs, 0);
+/// assert_eq!(diagnostics.joins.runs, 0);
+/// ```
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SpatialDiagnostics {
+    /// Frames since the plugin was added.
+    pub frame: u64,
+    /// Index updates.
+    pub sync: SyncWork,
+    /// Leaf repairs.
+    pub maintenance: MaintenanceWork,
+    /// Frustum culling for [`CullingCamera`](super::CullingCamera)s.
+    pub culling: QueryWork,
+    /// Batched raycasts for [`RayCaster`](super::RayCaster)s.
+    pub rays: QueryWork,
+    /// Registered spatial joins.
+    pub joins: QueryWork,
+    /// Invalid-box skips since the plugin was added (never reset).
+    pub invalid_total: u64,
+}
+
+impl SpatialDiagnostics {
+    pub(crate) fn record_sync(&mut self, count: &SyncCount) {
+        self.sync.runs += 1;
+        self.sync.inserted += count.inserted;
+        self.sync.updated += count.updated;
+        self.sync.removed += count.removed;
+        self.sync.invalid_skipped += count.invalid;
+        self.invalid_total += count.invalid;
+    }
+}
+
+/// Starts a new frame of counters.
+pub(crate) fn reset_diagnostics(mut diagnostics: ResMut<SpatialDiagnostics>) {
+    *diagnostics = SpatialDiagnostics {
+        frame: diagnostics.frame + 1,
+        invalid_total: diagnostics.invalid_total,
+        ..SpatialDiagnostics::default()
+    };
+}

@@ -1,0 +1,250 @@
+//! One index per layer: the tree of the entities that carry the layer's
+//! marker, and the systems and observers that keep it equal to their boxes.
+
+use std::marker::PhantomData;
+
+use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
+use bevy_ecs::prelude::*;
+
+use super::SpatialDiagnostics;
+use super::bounds::{NoSpatialIndex, SpatialBounds};
+use crate::geometry::Aabb;
+use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
+
+/// The index of one layer: every entity with [`SpatialBounds`], the marker
+/// `L` and no [`NoSpatialIndex`], keyed by [`Entity`].
+///
+/// `SpatialIndex` (with the default `L = SpatialBounds`) holds every indexed
+/// entity; [`add_spatial_layer::<L>`](super::SpatialAppExt::add_spatial_layer)
+/// adds a separate tree for the entities marked `L`, so that queries and joins
+/// limited to that layer visit nothing else.
+///
+/// Read it from any system with `Res<SpatialIndex<L>>` (or through
+/// [`SpatialQuery`](super::SpatialQuery)); it is current after
+/// [`SpatialIndexSystems::Sync`](super::SpatialIndexSystems::Sync).
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::Aabb;
+/// use bevy_rtree::plugin::{SpatialBounds, SpatialIndex, SpatialIndexPlugin};
+/// use glam::Vec3;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let e = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?)).id();
+/// app.update();
+/// let index = app.world().resource::<SpatialIndex>();
+/// assert_eq!(index.get(e), Some(Aabb::new(Vec3::ZERO, Vec3::ONE)?));
+/// assert_eq!(index.tree().overlapping(&Aabb::new(Vec3::splat(0.5), Vec3::ONE)?), vec![e]);
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Resource)]
+pub struct SpatialIndex<L: Component = SpatialBounds> {
+    tree: RTree<Entity>,
+    proxies: EntityHashMap<ProxyId>,
+    /// Entities already warned about an invalid box (one warning each).
+    warned: EntityHashSet,
+    /// Bumped by every change of the indexed set or of a box, so that joins
+    /// can skip frames where neither of their layers changed.
+    generation: u64,
+    _layer: PhantomData<fn() -> L>,
+}
+
+impl<L: Component> SpatialIndex<L> {
+    pub(crate) fn new(settings: TreeSettings) -> Self {
+        let tree = RTree::with_settings(settings).unwrap_or_default();
+        SpatialIndex {
+            tree,
+            proxies: EntityHashMap::default(),
+            warned: EntityHashSet::default(),
+            generation: 0,
+            _layer: PhantomData,
+        }
+    }
+
+    /// The tree, for every query of the core API.
+    pub fn tree(&self) -> &RTree<Entity> {
+        &self.tree
+    }
+
+    /// Number of indexed entities.
+    pub fn len(&self) -> usize {
+        self.tree.len()
+    }
+
+    /// Whether no entity is indexed.
+    pub fn is_empty(&self) -> bool {
+        self.tree.is_empty()
+    }
+
+    /// Whether `entity` is indexed.
+    pub fn contains(&self, entity: Entity) -> bool {
+        self.proxies.contains_key(&entity)
+    }
+
+    /// The box the index holds for `entity`, if it is indexed.
+    pub fn get(&self, entity: Entity) -> Option<Aabb> {
+        let id = *self.proxies.get(&entity)?;
+        self.tree.get(id).ok().map(|(_, aabb)| aabb)
+    }
+
+    /// Checks the tree's invariants (SEMANTICS S10) and that the entity map
+    /// and the tree agree.
+    pub fn validate(&self) -> Result<(), InvariantViolation> {
+        self.tree.validate()?;
+        if self.proxies.len() != self.tree.len() {
+            return Err(InvariantViolation(format!(
+                "{} entities mapped, {} entries in the tree",
+                self.proxies.len(),
+                self.tree.len()
+            )));
+        }
+        for (entity, id) in &self.proxies {
+            match self.tree.get(*id) {
+                Ok((key, _)) if key == *entity => {}
+                _ => {
+                    return Err(InvariantViolation(format!(
+                        "{entity} maps to a handle the tree does not hold for it"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A counter that changes whenever the indexed set or a box changes.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Takes `entity` out of the index if it is there.
+    pub(crate) fn remove(&mut self, entity: Entity) -> bool {
+        self.warned.remove(&entity);
+        match self.proxies.remove(&entity) {
+            Some(id) => {
+                // The handle came from this tree, so removal cannot fail.
+                let _ = self.tree.remove(id);
+                self.generation += 1;
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Whether `L` is the layer of all indexed entities.
+pub(crate) fn is_main_layer<L: Component>() -> bool {
+    std::any::TypeId::of::<L>() == std::any::TypeId::of::<SpatialBounds>()
+}
+
+/// What one sync pass did to one index.
+#[derive(Default)]
+pub(crate) struct SyncCount {
+    pub inserted: u64,
+    pub updated: u64,
+    pub removed: u64,
+    pub invalid: u64,
+}
+
+/// Applies the changed boxes of this frame to the index of layer `L`.
+///
+/// New entities are gathered and inserted together: when they outnumber the
+/// entities already indexed (the first frame of a scene) the tree is bulk
+/// loaded, which is several times faster and gives a better tree.
+#[allow(clippy::type_complexity)]
+pub(crate) fn sync_layer<L: Component>(
+    mut index: ResMut<SpatialIndex<L>>,
+    changed: Query<
+        (Entity, &SpatialBounds),
+        (
+            With<L>,
+            Without<NoSpatialIndex>,
+            Or<(Changed<SpatialBounds>, Added<L>)>,
+        ),
+    >,
+    mut fresh: Local<Vec<(Entity, Aabb)>>,
+    mut diagnostics: ResMut<SpatialDiagnostics>,
+) {
+    let index = &mut *index;
+    let mut count = SyncCount::default();
+    fresh.clear();
+    for (entity, bounds) in &changed {
+        let aabb = bounds.0;
+        if let Err(error) = aabb.validate() {
+            if index.remove(entity) {
+                count.removed += 1;
+            }
+            // Every indexed entity is in the main layer: report it there
+            // only, so that one bad box is one warning and one count.
+            if !is_main_layer::<L>() {
+                continue;
+            }
+            count.invalid += 1;
+            if index.warned.insert(entity) {
+                log::warn!(
+                    "{entity} has an invalid SpatialBounds ({error}); it is left out of the spatial index until its box is valid"
+                );
+            }
+            continue;
+        }
+        index.warned.remove(&entity);
+        match index.proxies.get(&entity) {
+            Some(&id) => {
+                // The box was validated above and the handle is live.
+                if index.tree.update(id, aabb).is_ok() {
+                    count.updated += 1;
+                }
+            }
+            None => fresh.push((entity, aabb)),
+        }
+    }
+    if !fresh.is_empty() {
+        count.inserted = fresh.len() as u64;
+        if fresh.len() > index.tree.len() {
+            if let Ok(ids) = index.tree.insert_bulk(fresh.iter().copied()) {
+                for (&(entity, _), id) in fresh.iter().zip(ids) {
+                    index.proxies.insert(entity, id);
+                }
+            }
+        } else {
+            for &(entity, aabb) in fresh.iter() {
+                if let Ok(id) = index.tree.insert(entity, aabb) {
+                    index.proxies.insert(entity, id);
+                }
+            }
+        }
+    }
+    if count.inserted + count.updated + count.removed > 0 {
+        index.generation += 1;
+    }
+    diagnostics.record_sync(&count);
+}
+
+/// Re-tiles the leaves that churn has degraded, a bounded amount per frame.
+pub(crate) fn maintain_layer<L: Component>(
+    mut index: ResMut<SpatialIndex<L>>,
+    settings: Res<super::SpatialIndexConfig>,
+    mut diagnostics: ResMut<SpatialDiagnostics>,
+) {
+    let repacked = index.tree.optimize(settings.optimize_budget);
+    diagnostics.maintenance.runs += 1;
+    diagnostics.maintenance.nodes_repacked += repacked as u64;
+}
+
+/// Run condition: the layer has degraded leaves waiting for repair.
+pub(crate) fn needs_maintenance<L: Component>(index: Res<SpatialIndex<L>>) -> bool {
+    index.tree.pending_repairs() > 0
+}
+
+/// Observer: an entity lost its box, its layer marker or its place (opt-out
+/// or despawn), so it leaves the index at once.
+pub(crate) fn remove_from_layer<L: Component>(
+    entity: Entity,
+    index: &mut SpatialIndex<L>,
+    diagnostics: &mut SpatialDiagnostics,
+) {
+    if index.remove(entity) {
+        diagnostics.sync.removed += 1;
+    }
+}

@@ -1,0 +1,288 @@
+//! The bevy_ecs / bevy_app integration: [`SpatialIndexPlugin`].
+//!
+//! Add the plugin, give entities a [`SpatialBounds`], and every frame read:
+//! - the visible entities of each [`CullingCamera`] in its
+//!   [`VisibleEntityList`];
+//! - the hits of each [`RayCaster`] in its [`RayCasterHits`];
+//! - the pairs of each join registered with
+//!   [`add_spatial_join`](SpatialAppExt::add_spatial_join) in its
+//!   [`SpatialJoin`] resource, with [`PairStarted`] / [`PairEnded`] messages;
+//! - anything else through the [`SpatialQuery`] system parameter.
+//!
+//! Layers are marker components registered with
+//! [`add_spatial_layer`](SpatialAppExt::add_spatial_layer): each layer keeps
+//! its own tree, so a query or join limited to a layer visits nothing else.
+//!
+//! The plugin runs only what the scene calls for: culling only while a
+//! culling camera exists, rays only while a caster exists, a join only while
+//! both its layers have entities and one of them changed, leaf repair only
+//! where churn left work. [`SpatialDiagnostics`] shows what ran each frame.
+//!
+//! ```
+//! use bevy_app::prelude::*;
+//! use bevy_ecs::prelude::*;
+//! use bevy_rtree::{Aabb, Ray, RayMode};
+//! use bevy_rtree::plugin::*;
+//! use glam::Vec3;
+//!
+//! let mut app = App::new();
+//! app.add_plugins(SpatialIndexPlugin::default());
+//! let crate_box = SpatialBounds(Aabb::new(Vec3::new(4.0, -1.0, -1.0), Vec3::new(5.0, 1.0, 1.0))?);
+//! let target = app.world_mut().spawn(crate_box).id();
+//! let eye = app.world_mut().spawn(RayCaster::new(Ray::new(Vec3::ZERO, Vec3::X, 10.0)?, RayMode::First)).id();
+//! app.update();
+//! assert_eq!(app.world().get::<RayCasterHits>(eye).unwrap().first().map(|h| h.key), Some(target));
+//! # Ok::<(), bevy_rtree::SpatialError>(())
+//! ```
+
+/// `Clone`, `Copy` and `Debug` for types generic over layer markers, which
+/// derives would only give when the markers themselves implement them.
+macro_rules! impl_layer_generic_traits {
+    ($ty:ident<$($layer:ident),+> { $($field:ident),* }) => {
+        impl<$($layer: Component),+> Clone for $ty<$($layer),+> {
+            fn clone(&self) -> Self {
+                *self
+            }
+        }
+        impl<$($layer: Component),+> Copy for $ty<$($layer),+> {}
+        impl<$($layer: Component),+> std::fmt::Debug for $ty<$($layer),+> {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.debug_struct(stringify!($ty))
+                    $(.field(stringify!($field), &self.$field))*
+                    .finish()
+            }
+        }
+    };
+}
+
+mod bounds;
+mod culling;
+mod diagnostics;
+mod index;
+mod join;
+mod query_param;
+mod raycast;
+#[cfg(feature = "bevy")]
+mod transform;
+
+use bevy_app::prelude::*;
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
+
+pub use bounds::{NoSpatialIndex, SpatialBounds};
+pub use culling::{CullingCamera, VisibleEntityList};
+pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
+pub use index::SpatialIndex;
+pub use join::{PairEnded, PairStarted, SpatialJoin};
+pub use query_param::SpatialQuery;
+pub use raycast::{RayCaster, RayCasterHits};
+#[cfg(feature = "bevy")]
+pub use transform::LocalBounds;
+
+use crate::query::JoinMode;
+use crate::tree::TreeSettings;
+
+/// Maintains one spatial index per layer and answers the frame's culling,
+/// raycasts and joins.
+///
+/// Every index is an [`RTree`](crate::RTree) of width 8 keyed by [`Entity`].
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::TreeSettings;
+/// use bevy_rtree::plugin::SpatialIndexPlugin;
+///
+/// App::new().add_plugins(SpatialIndexPlugin {
+///     tree: TreeSettings { margin: 0.25, ..TreeSettings::default() },
+///     ..SpatialIndexPlugin::default()
+/// });
+/// ```
+#[derive(Clone, Debug)]
+pub struct SpatialIndexPlugin {
+    /// The enlarging policy and the other tree settings, for every layer. If
+    /// they are invalid, a warning is logged and the defaults are used.
+    pub tree: TreeSettings,
+    /// The schedule the plugin's systems run in: `PostUpdate` by default, so
+    /// that this frame's moves (and, with the `bevy` feature, transform
+    /// propagation) come first.
+    pub schedule: InternedScheduleLabel,
+    /// Most churned nodes re-tiled per layer per frame; bounds the cost of
+    /// repair in any one frame.
+    pub optimize_budget: usize,
+}
+
+impl Default for SpatialIndexPlugin {
+    fn default() -> Self {
+        SpatialIndexPlugin {
+            tree: TreeSettings::default(),
+            schedule: PostUpdate.intern(),
+            optimize_budget: 64,
+        }
+    }
+}
+
+/// The plugin's settings as the layers registered later read them.
+#[derive(Resource, Clone, Debug)]
+pub(crate) struct SpatialIndexConfig {
+    tree: TreeSettings,
+    schedule: InternedScheduleLabel,
+    optimize_budget: usize,
+}
+
+/// The plugin's system sets, run in this order in the plugin's schedule.
+/// Order your systems against them: e.g. move entities before `Bounds`, read
+/// visible lists, hits and pairs after `Queries`.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SpatialIndexSystems {
+    /// World boxes from transforms (feature `bevy`).
+    Bounds,
+    /// Changed boxes into the indexes.
+    Sync,
+    /// Repair of leaves degraded by churn.
+    Maintain,
+    /// Culling, raycasts and joins.
+    Queries,
+}
+
+impl Plugin for SpatialIndexPlugin {
+    fn build(&self, app: &mut App) {
+        let tree = match self.tree.validate() {
+            Ok(()) => self.tree,
+            Err(error) => {
+                log::warn!(
+                    "SpatialIndexPlugin: invalid tree settings ({error}); using the defaults"
+                );
+                TreeSettings::default()
+            }
+        };
+        app.insert_resource(SpatialIndexConfig {
+            tree,
+            schedule: self.schedule,
+            optimize_budget: self.optimize_budget,
+        })
+        .init_resource::<SpatialDiagnostics>()
+        .configure_sets(
+            self.schedule,
+            (
+                SpatialIndexSystems::Bounds,
+                SpatialIndexSystems::Sync,
+                SpatialIndexSystems::Maintain,
+                SpatialIndexSystems::Queries,
+            )
+                .chain(),
+        )
+        .add_systems(First, diagnostics::reset_diagnostics)
+        .add_observer(opt_back_in);
+        #[cfg(feature = "bevy")]
+        transform::build(app, self.schedule);
+        app.add_spatial_layer::<SpatialBounds>();
+    }
+}
+
+/// Registration of layers and joins on an [`App`].
+pub trait SpatialAppExt {
+    /// Keeps a separate index of the entities marked `L` (with
+    /// [`SpatialBounds`]), readable as `Res<SpatialIndex<L>>` and usable by
+    /// `CullingCamera<L>`, `RayCaster<L>`, `SpatialQuery<L>` and joins.
+    /// Registering a layer twice does nothing. Add the plugin first (if it is
+    /// missing, the default plugin is added).
+    fn add_spatial_layer<L: Component>(&mut self) -> &mut Self;
+
+    /// Computes, every frame, the pairs of layer `A` × layer `B` within
+    /// `distance` (a self join when `A == B`), into the resource
+    /// [`SpatialJoin<A, B>`], with [`PairStarted<A, B>`] and
+    /// [`PairEnded<A, B>`] messages. Registers both layers. Registering the
+    /// same join again replaces its distance and mode.
+    fn add_spatial_join<A: Component, B: Component>(
+        &mut self,
+        distance: f32,
+        mode: JoinMode,
+    ) -> &mut Self;
+}
+
+impl SpatialAppExt for App {
+    fn add_spatial_layer<L: Component>(&mut self) -> &mut Self {
+        if self.world().contains_resource::<index::SpatialIndex<L>>() {
+            return self;
+        }
+        let Some(config) = self.world().get_resource::<SpatialIndexConfig>().cloned() else {
+            log::warn!("add_spatial_layer before SpatialIndexPlugin: adding the default plugin");
+            return self
+                .add_plugins(SpatialIndexPlugin::default())
+                .add_spatial_layer::<L>();
+        };
+        self.insert_resource(index::SpatialIndex::<L>::new(config.tree))
+            .add_systems(
+                config.schedule,
+                (
+                    index::sync_layer::<L>
+                        .in_set(SpatialIndexSystems::Sync)
+                        .run_if(any_with_component::<L>),
+                    index::maintain_layer::<L>
+                        .in_set(SpatialIndexSystems::Maintain)
+                        .run_if(index::needs_maintenance::<L>),
+                    culling::cull_cameras::<L>
+                        .in_set(SpatialIndexSystems::Queries)
+                        .run_if(any_with_component::<CullingCamera<L>>),
+                    raycast::cast_rays::<L>
+                        .in_set(SpatialIndexSystems::Queries)
+                        .run_if(any_with_component::<RayCaster<L>>),
+                ),
+            )
+            .add_observer(
+                |event: On<Remove<L>>,
+                 mut index: ResMut<SpatialIndex<L>>,
+                 mut diagnostics: ResMut<SpatialDiagnostics>| {
+                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
+                },
+            )
+            .add_observer(
+                |event: On<Add<NoSpatialIndex>>,
+                 mut index: ResMut<SpatialIndex<L>>,
+                 mut diagnostics: ResMut<SpatialDiagnostics>| {
+                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
+                },
+            );
+        if !index::is_main_layer::<L>() {
+            self.add_observer(
+                |event: On<Remove<SpatialBounds>>,
+                 mut index: ResMut<SpatialIndex<L>>,
+                 mut diagnostics: ResMut<SpatialDiagnostics>| {
+                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
+                },
+            );
+        }
+        self
+    }
+
+    fn add_spatial_join<A: Component, B: Component>(
+        &mut self,
+        distance: f32,
+        mode: JoinMode,
+    ) -> &mut Self {
+        self.add_spatial_layer::<A>().add_spatial_layer::<B>();
+        if let Some(mut join) = self.world_mut().get_resource_mut::<SpatialJoin<A, B>>() {
+            join.distance = distance;
+            join.mode = mode;
+            return self;
+        }
+        let schedule = self.world().resource::<SpatialIndexConfig>().schedule;
+        self.insert_resource(SpatialJoin::<A, B>::new(distance, mode))
+            .add_message::<PairStarted<A, B>>()
+            .add_message::<PairEnded<A, B>>()
+            .add_systems(
+                schedule,
+                join::run_join::<A, B>
+                    .in_set(SpatialIndexSystems::Queries)
+                    .run_if(join::join_has_work::<A, B>),
+            )
+    }
+}
+
+/// Observer: an entity that drops its opt-out marker is put back on the next
+/// sync, by marking its box as changed.
+fn opt_back_in(event: On<Remove<NoSpatialIndex>>, mut bounds: Query<&mut SpatialBounds>) {
+    if let Ok(mut bounds) = bounds.get_mut(event.entity) {
+        bounds.set_changed();
+    }
+}

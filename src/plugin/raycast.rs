@@ -1,0 +1,163 @@
+//! Raycasts for caster entities: every frame, all casters of a layer are
+//! batched into one traversal per ray mode, and each gets its hits.
+
+use std::marker::PhantomData;
+
+use bevy_ecs::prelude::*;
+
+use super::SpatialDiagnostics;
+use super::bounds::SpatialBounds;
+use super::index::SpatialIndex;
+use crate::geometry::{Ray, SpatialError};
+use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
+
+/// A ray cast every frame against layer `L` (all indexed entities by
+/// default); the answer lands in the entity's [`RayCasterHits`].
+///
+/// Ray work runs only while at least one `RayCaster<L>` exists. The ray is
+/// in world space and taken as is: a caster that is itself indexed in the
+/// same layer can hit its own box (start the ray outside it, or keep the
+/// caster in another layer). One caster per entity.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::{Aabb, Ray, RayMode};
+/// use bevy_rtree::plugin::{RayCaster, RayCasterHits, SpatialBounds, SpatialIndexPlugin};
+/// use glam::Vec3;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let wall = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::new(5.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0))?)).id();
+/// let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0)?;
+/// let caster = app.world_mut().spawn(RayCaster::new(ray, RayMode::First)).id();
+/// app.update();
+/// let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+/// assert_eq!(hits.first().map(|h| (h.key, h.t)), Some((wall, 5.0)));
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Component)]
+#[require(RayCasterHits)]
+pub struct RayCaster<L: Component = SpatialBounds> {
+    /// The ray, in world space (SEMANTICS S3).
+    pub ray: Ray,
+    /// First hit, all hits (optionally limited) or any hit.
+    pub mode: RayMode,
+    _layer: PhantomData<fn() -> L>,
+}
+
+impl_layer_generic_traits!(RayCaster<L> { ray, mode });
+
+impl RayCaster {
+    /// A caster against all indexed entities.
+    pub fn new(ray: Ray, mode: RayMode) -> Self {
+        RayCaster::for_layer(ray, mode)
+    }
+}
+
+impl<L: Component> RayCaster<L> {
+    /// A caster that only hits entities of layer `L` (register the layer
+    /// with [`add_spatial_layer`](super::SpatialAppExt::add_spatial_layer)).
+    pub fn for_layer(ray: Ray, mode: RayMode) -> Self {
+        RayCaster {
+            ray,
+            mode,
+            _layer: PhantomData,
+        }
+    }
+}
+
+/// This frame's answer for a [`RayCaster`] (SEMANTICS S5).
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub struct RayCasterHits {
+    hits: Vec<RayHit<Entity>>,
+    any: bool,
+    error: Option<SpatialError>,
+}
+
+impl RayCasterHits {
+    /// The hits sorted by `(t, entity)`: at most one for
+    /// [`RayMode::First`], none for [`RayMode::Any`].
+    pub fn hits(&self) -> &[RayHit<Entity>] {
+        &self.hits
+    }
+
+    /// The nearest hit, if any (not for [`RayMode::Any`]).
+    pub fn first(&self) -> Option<RayHit<Entity>> {
+        self.hits.first().copied()
+    }
+
+    /// Whether the ray hit anything (every mode).
+    pub fn any(&self) -> bool {
+        self.any
+    }
+
+    /// The ray's error if it was invalid (its hits are then empty).
+    pub fn error(&self) -> Option<SpatialError> {
+        self.error
+    }
+}
+
+/// Scratch reused by the ray system from frame to frame.
+#[derive(Default)]
+pub(crate) struct RayScratch {
+    workspace: QueryWorkspace,
+    modes: Vec<RayMode>,
+    rays: Vec<Ray>,
+    casters: Vec<Entity>,
+    results: RayResults<Entity>,
+}
+
+/// Casts every ray of layer `L`: one batched traversal per distinct mode.
+pub(crate) fn cast_rays<L: Component>(
+    index: Res<SpatialIndex<L>>,
+    casters: Query<(Entity, &RayCaster<L>)>,
+    mut answers: Query<&mut RayCasterHits, With<RayCaster<L>>>,
+    mut scratch: Local<RayScratch>,
+    mut diagnostics: ResMut<SpatialDiagnostics>,
+) {
+    let scratch = &mut *scratch;
+    scratch.modes.clear();
+    for (_, caster) in &casters {
+        if !scratch.modes.contains(&caster.mode) {
+            scratch.modes.push(caster.mode);
+        }
+    }
+    for m in 0..scratch.modes.len() {
+        let mode = scratch.modes[m];
+        scratch.rays.clear();
+        scratch.casters.clear();
+        for (entity, caster) in &casters {
+            if caster.mode == mode {
+                scratch.rays.push(caster.ray);
+                scratch.casters.push(entity);
+            }
+        }
+        index.tree().cast_rays(
+            &scratch.rays,
+            mode,
+            &mut scratch.workspace,
+            &mut scratch.results,
+        );
+        diagnostics
+            .rays
+            .record(scratch.rays.len(), &mut scratch.workspace);
+        for (i, &caster) in scratch.casters.iter().enumerate() {
+            let Ok(mut answer) = answers.get_mut(caster) else {
+                continue;
+            };
+            let answer = &mut *answer;
+            answer.hits.clear();
+            match scratch.results.hits(i) {
+                Ok(hits) => {
+                    answer.hits.extend_from_slice(hits);
+                    answer.any = scratch.results.any(i).unwrap_or(false);
+                    answer.error = None;
+                }
+                Err(error) => {
+                    answer.any = false;
+                    answer.error = Some(error);
+                }
+            }
+        }
+    }
+}

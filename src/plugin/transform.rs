@@ -1,0 +1,55 @@
+//! World boxes from `GlobalTransform` (feature `bevy`): an entity with a
+//! [`LocalBounds`] gets its [`SpatialBounds`] computed after transform
+//! propagation, only when its transform or local box changed.
+
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::InternedScheduleLabel;
+use bevy_transform::TransformSystems;
+use bevy_transform::prelude::GlobalTransform;
+
+use super::SpatialIndexSystems;
+use super::bounds::SpatialBounds;
+use crate::geometry::Aabb;
+
+/// The entity's box in its local space; its world box follows its
+/// `GlobalTransform` (SEMANTICS S1: outward rounding unless the transform is
+/// a pure translation).
+///
+/// A transform that is not finite or that collapses an axis (zero scale)
+/// gives no world box: the entity leaves the index, is reported once and
+/// counted, until its transform is usable again.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[require(SpatialBounds, GlobalTransform)]
+pub struct LocalBounds(pub Aabb);
+
+pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
+    app.configure_sets(
+        schedule,
+        SpatialIndexSystems::Bounds.after(TransformSystems::Propagate),
+    )
+    .add_systems(
+        schedule,
+        bounds_from_transforms
+            .in_set(SpatialIndexSystems::Bounds)
+            .run_if(any_with_component::<LocalBounds>),
+    );
+}
+
+#[allow(clippy::type_complexity)]
+fn bounds_from_transforms(
+    mut entities: Query<
+        (&LocalBounds, &GlobalTransform, &mut SpatialBounds),
+        Or<(Changed<GlobalTransform>, Changed<LocalBounds>)>,
+    >,
+) {
+    for (local, global, mut bounds) in &mut entities {
+        let affine = global.affine();
+        let collapsed = affine.matrix3.determinant() == 0.0;
+        let world = if collapsed {
+            Aabb::INVERTED
+        } else {
+            local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
+        };
+        bounds.set_if_neq(SpatialBounds(world));
+    }
+}

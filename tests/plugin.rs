@@ -1,0 +1,387 @@
+//! Named scenes through the plugin: the lifecycle of an indexed entity,
+//! layers, bad input on the ECS path, and what runs (or not) each frame.
+
+use bevy_app::prelude::*;
+use bevy_ecs::prelude::*;
+use bevy_rtree::plugin::*;
+use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, Ray, RayMode};
+use glam::{Quat, Vec3};
+
+#[derive(Component)]
+struct Enemy;
+
+#[derive(Component)]
+struct Barrel;
+
+fn app() -> App {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    app
+}
+
+fn unit_at(x: f32) -> SpatialBounds {
+    SpatialBounds(Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0)).unwrap())
+}
+
+fn indexed(app: &App) -> Vec<Entity> {
+    let index = app.world().resource::<SpatialIndex>();
+    index.validate().expect("index invariants");
+    let mut all: Vec<Entity> = index.tree().iter().map(|(_, e, _)| e).collect();
+    all.sort_unstable();
+    all
+}
+
+fn sorted<const N: usize>(mut entities: [Entity; N]) -> [Entity; N] {
+    entities.sort_unstable();
+    entities
+}
+
+fn diagnostics(app: &App) -> SpatialDiagnostics {
+    *app.world().resource::<SpatialDiagnostics>()
+}
+
+/// Looking down -Z from z = 10 at the unit boxes along x.
+fn camera() -> CullingCamera {
+    CullingCamera::new(
+        Frustum::perspective(
+            Vec3::new(0.0, 0.0, 10.0),
+            Quat::IDENTITY,
+            1.2,
+            1.0,
+            0.1,
+            100.0,
+        )
+        .unwrap(),
+    )
+}
+
+#[test]
+fn spawn_move_despawn_and_respawn_follow_the_entity() {
+    let mut app = app();
+    let a = app.world_mut().spawn(unit_at(0.0)).id();
+    app.update();
+    assert_eq!(indexed(&app), [a]);
+    assert_eq!(diagnostics(&app).sync.inserted, 1);
+
+    app.world_mut().get_mut::<SpatialBounds>(a).unwrap().0 =
+        Aabb::new(Vec3::splat(5.0), Vec3::splat(6.0)).unwrap();
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(
+        index.get(a),
+        Some(Aabb::new(Vec3::splat(5.0), Vec3::splat(6.0)).unwrap())
+    );
+    assert_eq!(diagnostics(&app).sync.updated, 1);
+
+    // Unchanged entities do not touch the index.
+    app.update();
+    let d = diagnostics(&app);
+    assert_eq!((d.sync.inserted, d.sync.updated, d.sync.removed), (0, 0, 0));
+
+    // Despawn enough entities that their slots come back (the allocator
+    // frees in blocks), then respawn: new generations, same slots.
+    let mut old: Vec<Entity> = (0..600)
+        .map(|i| app.world_mut().spawn(unit_at(i as f32)).id())
+        .collect();
+    old.push(a);
+    app.update();
+    for &e in &old {
+        app.world_mut().despawn(e);
+    }
+    app.update();
+    assert_eq!(indexed(&app), []);
+    let mut new: Vec<Entity> = (0..600)
+        .map(|i| app.world_mut().spawn(unit_at(i as f32)).id())
+        .collect();
+    let reused = new
+        .iter()
+        .filter(|n| old.iter().any(|o| o.index() == n.index()))
+        .count();
+    assert!(reused > 0, "some slots are reused");
+    app.update();
+    new.sort_unstable();
+    assert_eq!(indexed(&app), new);
+    let index = app.world().resource::<SpatialIndex>();
+    assert!(old.iter().all(|&o| !index.contains(o)));
+    assert!(!app.world().resource::<SpatialIndex>().contains(a));
+}
+
+#[test]
+fn removing_the_component_takes_the_entity_out_before_the_next_query() {
+    let mut app = app();
+    let a = app.world_mut().spawn(unit_at(0.0)).id();
+    app.update();
+    app.world_mut().entity_mut(a).remove::<SpatialBounds>();
+    // Out at once, not at the next sync.
+    assert!(!app.world().resource::<SpatialIndex>().contains(a));
+    app.update();
+    assert_eq!(indexed(&app), []);
+}
+
+#[test]
+fn opting_out_and_back_in() {
+    let mut app = app();
+    let a = app.world_mut().spawn(unit_at(0.0)).id();
+    app.update();
+    app.world_mut().entity_mut(a).insert(NoSpatialIndex);
+    app.update();
+    assert_eq!(indexed(&app), []);
+    app.world_mut().entity_mut(a).remove::<NoSpatialIndex>();
+    app.update();
+    assert_eq!(indexed(&app), [a]);
+    // Spawned opted out: never indexed.
+    let b = app.world_mut().spawn((unit_at(3.0), NoSpatialIndex)).id();
+    app.update();
+    assert_eq!(indexed(&app), [a]);
+    app.world_mut().entity_mut(b).remove::<NoSpatialIndex>();
+    app.update();
+    assert_eq!(indexed(&app), sorted([a, b]));
+}
+
+#[test]
+fn layers_hold_only_their_marked_entities() {
+    let mut app = app();
+    app.add_spatial_layer::<Enemy>();
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let other = app.world_mut().spawn(unit_at(2.0)).id();
+    app.update();
+    let layer = |app: &App| {
+        let index = app.world().resource::<SpatialIndex<Enemy>>();
+        index.validate().unwrap();
+        let mut all: Vec<Entity> = index.tree().iter().map(|(_, e, _)| e).collect();
+        all.sort_unstable();
+        all
+    };
+    assert_eq!(layer(&app), [enemy]);
+    assert_eq!(indexed(&app), sorted([enemy, other]));
+
+    app.world_mut().entity_mut(other).insert(Enemy);
+    app.update();
+    assert_eq!(layer(&app), sorted([enemy, other]));
+
+    app.world_mut().entity_mut(enemy).remove::<Enemy>();
+    assert_eq!(layer(&app), [other], "leaving a layer is immediate");
+    app.update();
+    assert_eq!(indexed(&app), sorted([enemy, other]));
+
+    // A layer-limited caster sees only its layer.
+    let ray = Ray::new(Vec3::new(-5.0, 0.5, 0.5), Vec3::X, 100.0).unwrap();
+    let caster = app
+        .world_mut()
+        .spawn(RayCaster::<Enemy>::for_layer(ray, RayMode::First))
+        .id();
+    app.update();
+    let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+    assert_eq!(hits.first().map(|h| h.key), Some(other));
+}
+
+#[test]
+fn invalid_boxes_are_skipped_counted_and_recovered() {
+    let mut app = app();
+    let good = app.world_mut().spawn(unit_at(0.0)).id();
+    let bad = app.world_mut().spawn(unit_at(2.0)).id();
+    app.update();
+    let nan = Aabb {
+        min: Vec3::new(f32::NAN, 0.0, 0.0),
+        max: Vec3::ONE,
+    };
+    let inverted = Aabb {
+        min: Vec3::ONE,
+        max: Vec3::ZERO,
+    };
+    for (frame, broken) in [nan, inverted].into_iter().enumerate() {
+        app.world_mut().get_mut::<SpatialBounds>(bad).unwrap().0 = broken;
+        app.update();
+        assert_eq!(
+            indexed(&app),
+            [good],
+            "an entity with an unknown box is found by nothing"
+        );
+        let d = diagnostics(&app);
+        assert_eq!(d.sync.invalid_skipped, 1);
+        assert_eq!(d.invalid_total, frame as u64 + 1);
+    }
+    // A spawn with a bad box never enters.
+    let infinite = SpatialBounds(Aabb {
+        min: Vec3::ZERO,
+        max: Vec3::new(f32::INFINITY, 1.0, 1.0),
+    });
+    app.world_mut().spawn(infinite);
+    app.update();
+    assert_eq!(indexed(&app), [good]);
+    assert_eq!(diagnostics(&app).invalid_total, 3);
+
+    app.world_mut().get_mut::<SpatialBounds>(bad).unwrap().0 = unit_at(4.0).0;
+    app.update();
+    assert_eq!(indexed(&app), sorted([good, bad]));
+}
+
+#[test]
+fn a_scene_without_cameras_casters_or_joins_does_none_of_that_work() {
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+    for i in 0..100 {
+        app.world_mut().spawn((unit_at(i as f32 * 2.0), Enemy));
+    }
+    for _ in 0..3 {
+        app.update();
+        let d = diagnostics(&app);
+        assert_eq!(d.culling, QueryWork::default());
+        assert_eq!(d.rays, QueryWork::default());
+        // No barrels: the join has nothing to pair.
+        assert_eq!(d.joins, QueryWork::default());
+    }
+    // A static scene has nothing to maintain either.
+    let d = diagnostics(&app);
+    assert_eq!(d.maintenance.runs, 0);
+    assert_eq!((d.sync.inserted, d.sync.updated), (0, 0));
+}
+
+#[test]
+fn work_starts_and_stops_with_cameras_casters_and_join_members() {
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    app.update();
+
+    let cam = app.world_mut().spawn(camera()).id();
+    app.update();
+    let d = diagnostics(&app);
+    assert_eq!(d.culling.runs, 1);
+    assert!(d.culling.nodes_visited > 0);
+    assert_eq!(
+        app.world()
+            .get::<VisibleEntityList>(cam)
+            .unwrap()
+            .entities(),
+        [enemy]
+    );
+    app.world_mut().despawn(cam);
+    app.update();
+    assert_eq!(diagnostics(&app).culling.runs, 0);
+
+    let ray = Ray::new(Vec3::new(-5.0, 0.5, 0.5), Vec3::X, 100.0).unwrap();
+    let caster = app
+        .world_mut()
+        .spawn(RayCaster::new(ray, RayMode::Any))
+        .id();
+    app.update();
+    assert_eq!(diagnostics(&app).rays.runs, 1);
+    assert!(app.world().get::<RayCasterHits>(caster).unwrap().any());
+    app.world_mut().despawn(caster);
+    app.update();
+    assert_eq!(diagnostics(&app).rays.runs, 0);
+
+    let barrel = app.world_mut().spawn((unit_at(3.0), Barrel)).id();
+    app.update();
+    assert_eq!(diagnostics(&app).joins.runs, 1);
+    assert_eq!(
+        app.world().resource::<SpatialJoin<Enemy, Barrel>>().pairs(),
+        [(enemy, barrel)]
+    );
+    // Nothing moved: the pairs stand without recomputing.
+    app.update();
+    assert_eq!(diagnostics(&app).joins.runs, 0);
+    assert_eq!(
+        app.world()
+            .resource::<SpatialJoin<Enemy, Barrel>>()
+            .pairs()
+            .len(),
+        1
+    );
+    // The last barrel leaves: one more run clears the pairs, then none.
+    app.world_mut().despawn(barrel);
+    app.update();
+    assert_eq!(diagnostics(&app).joins.runs, 1);
+    assert!(
+        app.world()
+            .resource::<SpatialJoin<Enemy, Barrel>>()
+            .pairs()
+            .is_empty()
+    );
+    app.update();
+    assert_eq!(diagnostics(&app).joins.runs, 0);
+}
+
+#[test]
+fn pair_messages_report_starts_and_ends() {
+    #[derive(Resource, Default)]
+    struct Log(Vec<(bool, Entity, Entity)>);
+
+    fn record(
+        mut started: MessageReader<PairStarted<Enemy, Barrel>>,
+        mut ended: MessageReader<PairEnded<Enemy, Barrel>>,
+        mut log: ResMut<Log>,
+    ) {
+        log.0.extend(started.read().map(|m| (true, m.a, m.b)));
+        log.0.extend(ended.read().map(|m| (false, m.a, m.b)));
+    }
+
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(1.0, JoinMode::Euclidean)
+        .init_resource::<Log>()
+        .add_systems(Last, record);
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let barrel = app.world_mut().spawn((unit_at(10.0), Barrel)).id();
+    app.update();
+    assert!(app.world().resource::<Log>().0.is_empty());
+
+    app.world_mut().get_mut::<SpatialBounds>(barrel).unwrap().0 = unit_at(2.0).0;
+    app.update();
+    assert_eq!(
+        app.world_mut()
+            .resource_mut::<Log>()
+            .0
+            .drain(..)
+            .collect::<Vec<_>>(),
+        [(true, enemy, barrel)]
+    );
+
+    // Exactly at the distance still pairs (closed); just beyond ends it.
+    app.world_mut().get_mut::<SpatialBounds>(barrel).unwrap().0 = unit_at(2.0).0;
+    app.update();
+    assert!(app.world().resource::<Log>().0.is_empty());
+    app.world_mut().get_mut::<SpatialBounds>(barrel).unwrap().0 = unit_at(2.5).0;
+    app.update();
+    assert_eq!(
+        app.world_mut()
+            .resource_mut::<Log>()
+            .0
+            .drain(..)
+            .collect::<Vec<_>>(),
+        [(false, enemy, barrel)]
+    );
+}
+
+#[test]
+fn culling_modes_and_camera_lists_match_the_oracle() {
+    let mut app = app();
+    let mut oracle = bevy_rtree::oracle::BruteForce::default();
+    for i in 0..50 {
+        let b = unit_at(i as f32 * 1.5 - 30.0);
+        let e = app.world_mut().spawn(b).id();
+        oracle.insert(e, b.0);
+    }
+    let conservative = app.world_mut().spawn(camera()).id();
+    let exact = app
+        .world_mut()
+        .spawn(camera().with_mode(CullMode::Exact))
+        .id();
+    app.update();
+    let frustum = app
+        .world()
+        .get::<CullingCamera>(conservative)
+        .unwrap()
+        .frustum;
+    for (cam, mode) in [
+        (conservative, CullMode::Conservative),
+        (exact, CullMode::Exact),
+    ] {
+        let list = app.world().get::<VisibleEntityList>(cam).unwrap();
+        let expected = oracle.visible(&frustum, mode);
+        assert!(!expected.is_empty());
+        assert_eq!(list.entities(), expected);
+    }
+    // Two modes, two traversals.
+    assert_eq!(diagnostics(&app).culling.runs, 2);
+}
