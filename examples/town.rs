@@ -46,7 +46,10 @@ pub fn build(count: usize, seed: u64) -> App {
     app.add_plugins(SpatialIndexPlugin::default())
         .add_spatial_join::<Enemy, Barrel>(TownScene::JOIN_DISTANCE, JoinMode::Euclidean)
         .init_resource::<IndexTimer>()
-        .add_systems(Update, (move_entities, aim_camera_and_rays))
+        // Chained: both systems draw from the scene's random stream and the
+        // camera follows the frame counter, so an unspecified order would
+        // make frames differ between runs and executors.
+        .add_systems(Update, (move_entities, aim_camera_and_rays).chain())
         .add_systems(
             PostUpdate,
             (
@@ -75,7 +78,9 @@ pub fn build(count: usize, seed: u64) -> App {
         .map(|_| {
             let placeholder = bevy_rtree::Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 1.0)
                 .expect("a valid placeholder ray");
-            world.spawn(RayCaster::new(placeholder, RayMode::First)).id()
+            world
+                .spawn(RayCaster::new(placeholder, RayMode::First))
+                .id()
         })
         .collect();
     app.insert_resource(Town {

@@ -385,3 +385,86 @@ fn culling_modes_and_camera_lists_match_the_oracle() {
     // Two modes, two traversals.
     assert_eq!(diagnostics(&app).culling.runs, 2);
 }
+
+#[test]
+fn spatial_query_answers_like_the_oracle_from_any_system() {
+    #[derive(Resource, Default)]
+    struct Answers {
+        first: Option<Entity>,
+        nearest: Vec<Entity>,
+        within: Vec<Entity>,
+        sphere: Vec<Entity>,
+        overlap: Vec<Entity>,
+        enemies_near: Vec<Entity>,
+    }
+
+    fn ask(mut all: SpatialQuery, mut enemies: SpatialQuery<Enemy>, mut answers: ResMut<Answers>) {
+        let origin = Vec3::new(-5.0, 0.5, 0.5);
+        let ray = Ray::new(origin, Vec3::X, 100.0).unwrap();
+        answers.first = all.cast_ray(&ray).unwrap().map(|h| h.key);
+        let mut neighbours = Vec::new();
+        all.nearest(Vec3::new(10.2, 0.5, 0.5), 3, None, &mut neighbours)
+            .unwrap();
+        answers.nearest = neighbours.iter().map(|n| n.key).collect();
+        all.within_radius(Vec3::new(10.2, 0.5, 0.5), 2.0, &mut neighbours)
+            .unwrap();
+        answers.within = neighbours.iter().map(|n| n.key).collect();
+        let mut found = Vec::new();
+        all.overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 1.0, &mut found)
+            .unwrap();
+        found.sort_unstable();
+        answers.sphere = std::mem::take(&mut found);
+        all.overlapping(
+            &Aabb::new(Vec3::new(4.0, 0.0, 0.0), Vec3::new(9.0, 1.0, 1.0)).unwrap(),
+            &mut found,
+        );
+        found.sort_unstable();
+        answers.overlap = std::mem::take(&mut found);
+        enemies
+            .nearest(Vec3::new(10.2, 0.5, 0.5), 2, None, &mut neighbours)
+            .unwrap();
+        answers.enemies_near = neighbours.iter().map(|n| n.key).collect();
+    }
+
+    let mut app = app();
+    app.add_spatial_layer::<Enemy>()
+        .init_resource::<Answers>()
+        .add_systems(PostUpdate, ask.after(SpatialIndexSystems::Sync));
+    let mut all = bevy_rtree::oracle::BruteForce::default();
+    let mut enemies = bevy_rtree::oracle::BruteForce::default();
+    for i in 0..40 {
+        let b = unit_at(i as f32 * 1.25);
+        let mut entity = app.world_mut().spawn(b);
+        if i % 3 == 0 {
+            entity.insert(Enemy);
+        }
+        let e = entity.id();
+        all.insert(e, b.0);
+        if i % 3 == 0 {
+            enemies.insert(e, b.0);
+        }
+    }
+    app.update();
+    let answers = app.world().resource::<Answers>();
+    let origin = Vec3::new(-5.0, 0.5, 0.5);
+    let ray = Ray::new(origin, Vec3::X, 100.0).unwrap();
+    assert_eq!(answers.first, all.ray_first(&ray).unwrap().map(|h| h.key));
+    let p = Vec3::new(10.2, 0.5, 0.5);
+    let keys =
+        |v: Vec<bevy_rtree::Neighbor<Entity>>| v.into_iter().map(|n| n.key).collect::<Vec<_>>();
+    assert_eq!(answers.nearest, keys(all.nearest(p, 3, None).unwrap()));
+    assert_eq!(answers.within, keys(all.within_radius(p, 2.0).unwrap()));
+    assert_eq!(
+        answers.enemies_near,
+        keys(enemies.nearest(p, 2, None).unwrap())
+    );
+    assert_eq!(
+        answers.sphere,
+        all.overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 1.0)
+            .unwrap()
+    );
+    let query = Aabb::new(Vec3::new(4.0, 0.0, 0.0), Vec3::new(9.0, 1.0, 1.0)).unwrap();
+    assert_eq!(answers.overlap, all.overlapping(&query));
+    assert_eq!(answers.nearest.len(), 3);
+    assert!(!answers.within.is_empty() && !answers.sphere.is_empty());
+}

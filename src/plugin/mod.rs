@@ -60,6 +60,7 @@ mod culling;
 mod diagnostics;
 mod index;
 mod join;
+mod oracle;
 mod query_param;
 mod raycast;
 #[cfg(feature = "bevy")]
@@ -74,6 +75,7 @@ pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
 pub use index::SpatialIndex;
 pub use join::{PairEnded, PairStarted, SpatialJoin};
+pub use oracle::layer_oracle;
 pub use query_param::SpatialQuery;
 pub use raycast::{RayCaster, RayCasterHits};
 #[cfg(feature = "bevy")]

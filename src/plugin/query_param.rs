@@ -5,8 +5,10 @@ use bevy_ecs::system::SystemParam;
 
 use super::bounds::SpatialBounds;
 use super::index::SpatialIndex;
+use glam::Vec3;
+
 use crate::geometry::{Aabb, Ray, SpatialError};
-use crate::query::{QueryWorkspace, RayHit};
+use crate::query::{Neighbor, QueryWorkspace, RayHit};
 
 /// A system parameter for queries on the index of layer `L` (all indexed
 /// entities by default), answered at once, with a workspace kept by the
@@ -81,5 +83,46 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         self.index
             .tree()
             .overlapping_into(query, &mut self.workspace, out);
+    }
+
+    /// Appends the entities whose box meets the closed sphere to `out`,
+    /// unordered.
+    pub fn overlapping_sphere(
+        &mut self,
+        center: Vec3,
+        radius: f32,
+        out: &mut Vec<Entity>,
+    ) -> Result<(), SpatialError> {
+        self.index
+            .tree()
+            .overlapping_sphere_into(center, radius, &mut self.workspace, out)
+    }
+
+    /// The `k` entities nearest to `point` (box distance, 0 inside), at most
+    /// `max_distance` away if given, sorted by `(distance, entity)`, into
+    /// `out` (cleared first).
+    pub fn nearest(
+        &mut self,
+        point: Vec3,
+        k: usize,
+        max_distance: Option<f32>,
+        out: &mut Vec<Neighbor<Entity>>,
+    ) -> Result<(), SpatialError> {
+        self.index
+            .tree()
+            .nearest_into(point, k, max_distance, &mut self.workspace, out)
+    }
+
+    /// Every entity within `radius` of `point`, sorted by
+    /// `(distance, entity)`, into `out` (cleared first).
+    pub fn within_radius(
+        &mut self,
+        point: Vec3,
+        radius: f32,
+        out: &mut Vec<Neighbor<Entity>>,
+    ) -> Result<(), SpatialError> {
+        self.index
+            .tree()
+            .within_radius_into(point, radius, &mut self.workspace, out)
     }
 }

@@ -1,0 +1,91 @@
+//! Every example scene, driven for a few frames, answers like brute force.
+
+#[path = "../examples/culling.rs"]
+#[allow(dead_code)]
+mod culling;
+#[path = "../examples/enemies_barrels.rs"]
+#[allow(dead_code)]
+mod enemies_barrels;
+#[path = "../examples/minimal.rs"]
+#[allow(dead_code)]
+mod minimal;
+#[path = "../examples/raycasts.rs"]
+#[allow(dead_code)]
+mod raycasts;
+#[path = "../examples/town.rs"]
+#[allow(dead_code)]
+mod town;
+
+use bevy_rtree::plugin::{RayCasterHits, SpatialDiagnostics, VisibleEntityList};
+
+#[test]
+fn minimal_sees_and_hits_the_crates_in_front() {
+    let mut scene = minimal::build();
+    scene.app.update();
+    let world = scene.app.world();
+    let [near, far, behind] = scene.boxes;
+    let mut expected = vec![near, far];
+    expected.sort_unstable();
+    let visible = world.get::<VisibleEntityList>(scene.camera).unwrap();
+    assert_eq!(visible.entities(), expected);
+    assert!(!visible.contains(behind));
+    let hit = world
+        .get::<RayCasterHits>(scene.eye)
+        .unwrap()
+        .first()
+        .unwrap();
+    assert_eq!((hit.key, hit.t), (near, 4.5));
+}
+
+#[test]
+fn town_through_the_plugin_matches_the_oracle() {
+    // Enough entities for both join layers (barrels start at 10,000); the
+    // brute-force check of 2,000 rays dominates, so two frames suffice.
+    let mut app = town::build(11_000, 9);
+    for _ in 0..2 {
+        app.update();
+        assert!(town::agrees_with_oracle(&app));
+    }
+    let (visible, hits, pairs) = town::counts(&app);
+    assert!(
+        visible > 0 && hits > 0 && pairs > 0,
+        "{visible} {hits} {pairs}"
+    );
+    let d = *app.world().resource::<SpatialDiagnostics>();
+    assert!(d.sync.updated > 0 && d.culling.runs == 1 && d.rays.queries == 2_000);
+}
+
+#[test]
+fn culling_cameras_match_the_oracle() {
+    let mut app = culling::build(3_000);
+    for _ in 0..3 {
+        app.update();
+        let seen = culling::check(&mut app);
+        assert!(seen.iter().all(|&(_, agrees)| agrees));
+        assert!(seen.iter().any(|&(count, _)| count > 0));
+        // Exact never sees more than conservative from the same view.
+        assert!(seen[2].0 <= seen[0].0 && seen[3].0 <= seen[1].0);
+    }
+}
+
+#[test]
+fn raycast_casters_match_the_oracle() {
+    let mut app = raycasts::build();
+    for _ in 0..3 {
+        app.update();
+        let (_, hitting, scanned, agrees) = raycasts::check(&mut app);
+        assert!(agrees);
+        assert!(hitting > 0 && scanned > 0);
+    }
+}
+
+#[test]
+fn enemies_and_barrels_pairs_match_the_oracle() {
+    let mut app = enemies_barrels::build();
+    for _ in 0..3 {
+        app.update();
+        let (pairs, agrees) = enemies_barrels::check(&mut app);
+        assert!(agrees);
+        assert!(pairs > 0);
+    }
+}

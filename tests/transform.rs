@@ -1,0 +1,105 @@
+//! The automatic path from `GlobalTransform` (feature `bevy`).
+#![cfg(feature = "bevy")]
+
+use bevy_app::prelude::*;
+use bevy_ecs::prelude::*;
+use bevy_rtree::Aabb;
+use bevy_rtree::plugin::*;
+use bevy_transform::prelude::*;
+use glam::{Quat, Vec3};
+
+fn app() -> App {
+    let mut app = App::new();
+    app.add_plugins((TransformPlugin, SpatialIndexPlugin::default()));
+    app
+}
+
+fn local() -> Aabb {
+    Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0)).unwrap()
+}
+
+#[test]
+fn world_boxes_follow_propagated_transforms() {
+    let mut app = app();
+    let parent = app
+        .world_mut()
+        .spawn(Transform::from_xyz(10.0, 0.0, 0.0))
+        .id();
+    let child = app
+        .world_mut()
+        .spawn((
+            Transform::from_xyz(0.0, 5.0, 0.0),
+            LocalBounds(local()),
+            ChildOf(parent),
+        ))
+        .id();
+    app.update();
+    let expected = Aabb::new(Vec3::new(9.0, 4.0, -1.0), Vec3::new(11.0, 6.0, 1.0)).unwrap();
+    assert_eq!(app.world().get::<SpatialBounds>(child).unwrap().0, expected);
+    assert_eq!(
+        app.world().resource::<SpatialIndex>().get(child),
+        Some(expected)
+    );
+
+    // Moving the parent moves the child's box in the same frame.
+    app.world_mut()
+        .get_mut::<Transform>(parent)
+        .unwrap()
+        .translation
+        .x = 20.0;
+    app.update();
+    let moved = app.world().resource::<SpatialIndex>().get(child).unwrap();
+    assert_eq!(moved.min.x, 19.0);
+
+    // A rotation rounds outward (SEMANTICS S1): the box still contains the
+    // exact image of every corner.
+    app.world_mut()
+        .get_mut::<Transform>(child)
+        .unwrap()
+        .rotation = Quat::from_rotation_y(0.7);
+    app.update();
+    let rotated = app.world().resource::<SpatialIndex>().get(child).unwrap();
+    let global = *app.world().get::<GlobalTransform>(child).unwrap();
+    for corner in 0..8 {
+        let c = Vec3::new(
+            if corner & 1 == 0 { -1.0 } else { 1.0 },
+            if corner & 2 == 0 { -1.0 } else { 1.0 },
+            if corner & 4 == 0 { -1.0 } else { 1.0 },
+        );
+        assert!(rotated.contains_point(global.transform_point(c)));
+    }
+    app.world().resource::<SpatialIndex>().validate().unwrap();
+}
+
+#[test]
+fn unusable_transforms_take_the_entity_out_and_are_counted() {
+    let mut app = app();
+    let e = app
+        .world_mut()
+        .spawn((Transform::from_xyz(1.0, 2.0, 3.0), LocalBounds(local())))
+        .id();
+    app.update();
+    assert!(app.world().resource::<SpatialIndex>().contains(e));
+
+    let bad = [
+        Transform::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+        Transform::from_xyz(f32::NAN, 0.0, 0.0),
+        Transform::from_xyz(f32::INFINITY, 0.0, 0.0),
+    ];
+    for (i, transform) in bad.into_iter().enumerate() {
+        *app.world_mut().get_mut::<Transform>(e).unwrap() = transform;
+        app.update();
+        let index = app.world().resource::<SpatialIndex>();
+        assert!(!index.contains(e), "case {i}");
+        index.validate().unwrap();
+        let diagnostics = app.world().resource::<SpatialDiagnostics>();
+        assert_eq!(diagnostics.sync.invalid_skipped, 1, "case {i}");
+        // Back to a usable transform: back in the index.
+        *app.world_mut().get_mut::<Transform>(e).unwrap() = Transform::from_xyz(0.0, 0.0, 0.0);
+        app.update();
+        assert!(
+            app.world().resource::<SpatialIndex>().contains(e),
+            "case {i}"
+        );
+    }
+}
