@@ -3,7 +3,9 @@
 //! A wide, dynamic R-tree that keeps a spatial index of a game's entities
 //! current as they move, and answers the queries a frame needs: frustum
 //! culling for several views in one traversal, batched raycasts (first, all or
-//! any hit), self and cross distance joins, and box and point overlap.
+//! any hit), self and cross distance joins, box, sphere and point overlap, and
+//! nearest neighbours. Use it through the ECS [`plugin`] or as a plain
+//! [`RTree`].
 //!
 //! ```
 //! use bevy_rtree::{Aabb, RTree};
@@ -18,6 +20,40 @@
 //! assert_eq!(tree.containing_point(Vec3::splat(1.05)), vec![1]);
 //! # Ok::<(), bevy_rtree::SpatialError>(())
 //! ```
+//!
+//! ## In a Bevy app
+//!
+//! Add [`plugin::SpatialIndexPlugin`], give entities a
+//! [`plugin::SpatialBounds`], and read each frame's answers from components
+//! and resources (this is the `minimal` example):
+//!
+//! ```
+//! use bevy_app::prelude::*;
+//! use bevy_rtree::plugin::*;
+//! use bevy_rtree::{Aabb, Ray, RayMode};
+//! use glam::{Quat, Vec3};
+//!
+//! let mut app = App::new();
+//! app.add_plugins(SpatialIndexPlugin::default());
+//! let world = app.world_mut();
+//! let at = |z: f32| SpatialBounds(Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, z), Vec3::splat(0.5)).unwrap());
+//! let near = world.spawn(at(-5.0)).id();
+//! let far = world.spawn(at(-10.0)).id();
+//! let behind = world.spawn(at(5.0)).id();
+//! // A camera at the origin looking down -Z, and a ray the same way.
+//! let camera = world.spawn(CullingCamera::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 16.0 / 9.0, 0.1, 100.0)?).id();
+//! let eye = world.spawn(RayCaster::new(Ray::new(Vec3::ZERO, Vec3::NEG_Z, 100.0)?, RayMode::First)).id();
+//!
+//! app.update();
+//! let visible = app.world().get::<VisibleEntityList>(camera).unwrap();
+//! assert!(visible.contains(near) && visible.contains(far) && !visible.contains(behind));
+//! let hit = app.world().get::<RayCasterHits>(eye).unwrap().first().unwrap();
+//! assert_eq!((hit.key, hit.t), (near, 4.5));
+//! # Ok::<(), bevy_rtree::SpatialError>(())
+//! ```
+//!
+//! The [`plugin`] module describes layers, joins, `SpatialQuery`, the
+//! diagnostics and what happens to entities with bad boxes.
 //!
 //! ## The contract
 //!
@@ -98,6 +134,7 @@
 //!
 //! ## Layout
 //!
+//! - [`plugin`]: the bevy_ecs / bevy_app integration;
 //! - [`geometry`]: boxes, rays, frustums, the error type and the predicates;
 //! - [`tree`]: the R-tree and its maintenance;
 //! - [`query`]: traversals and the [`oracle`];
@@ -119,3 +156,8 @@ pub use query::{
 pub use tree::{
     InvariantViolation, MaintenanceStats, MoveKind, ProxyId, QueryStats, RTree, TreeSettings,
 };
+
+// The README's code blocks compile and run as doc tests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+struct ReadmeDoctests;
