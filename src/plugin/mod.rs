@@ -55,6 +55,8 @@ macro_rules! impl_layer_generic_traits {
     };
 }
 
+#[cfg(feature = "bevy_camera")]
+mod bevy_camera;
 mod bounds;
 mod culling;
 mod diagnostics;
@@ -70,6 +72,8 @@ use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 
+#[cfg(feature = "bevy_camera")]
+pub use bevy_camera::FollowBevyFrustum;
 pub use bounds::{NoSpatialIndex, SpatialBounds};
 pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
@@ -177,6 +181,8 @@ impl Plugin for SpatialIndexPlugin {
         .add_observer(opt_back_in);
         #[cfg(feature = "bevy")]
         transform::build(app, self.schedule);
+        #[cfg(feature = "bevy_camera")]
+        bevy_camera::build(app, self.schedule);
         app.add_spatial_layer::<SpatialBounds>();
     }
 }

@@ -1,0 +1,89 @@
+//! Culling cameras that follow a real Bevy camera (feature `bevy_camera`):
+//! the camera's `Frustum`, which Bevy keeps current from its projection and
+//! transform, becomes the [`CullingCamera`]'s frustum every frame it changes.
+
+use bevy_camera::primitives::Frustum as BevyFrustum;
+use bevy_camera::visibility::VisibilitySystems;
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::InternedScheduleLabel;
+use bevy_transform::prelude::GlobalTransform;
+use glam::Vec3;
+
+use super::{CullingCamera, SpatialIndexSystems};
+use crate::geometry::Frustum;
+use crate::query::CullMode;
+
+/// Put this on a Bevy camera (next to its `Frustum` and `GlobalTransform`)
+/// and the plugin keeps a [`CullingCamera`] on the same entity equal to it,
+/// so its [`VisibleEntityList`](super::VisibleEntityList) lists what the
+/// camera sees. The eye is the camera's world position.
+///
+/// A frustum that cannot be converted (not finite) keeps the previous one
+/// and logs a warning once per camera.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FollowBevyFrustum {
+    /// The cull mode of the [`CullingCamera`].
+    pub mode: CullMode,
+}
+
+pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
+    app.configure_sets(
+        schedule,
+        SpatialIndexSystems::Bounds.after(VisibilitySystems::UpdateFrusta),
+    )
+    .add_systems(
+        schedule,
+        follow_bevy_frustums
+            .in_set(SpatialIndexSystems::Bounds)
+            .run_if(any_with_component::<FollowBevyFrustum>),
+    );
+}
+
+/// Our frustum from Bevy's world-space half-spaces (`n·p + d > 0` inside,
+/// the same convention), re-based on the eye.
+pub(crate) fn convert(frustum: &BevyFrustum, eye: Vec3) -> Option<Frustum> {
+    let planes = frustum.half_spaces.map(|h| (Vec3::from(h.normal()), h.d()));
+    Frustum::from_world_planes(eye, planes).ok()
+}
+
+#[allow(clippy::type_complexity)]
+fn follow_bevy_frustums(
+    mut commands: Commands,
+    mut cameras: Query<
+        (
+            Entity,
+            &BevyFrustum,
+            &GlobalTransform,
+            &FollowBevyFrustum,
+            Option<&mut CullingCamera>,
+        ),
+        Or<(
+            Changed<BevyFrustum>,
+            Changed<FollowBevyFrustum>,
+            Without<CullingCamera>,
+        )>,
+    >,
+    mut warned: Local<bevy_ecs::entity::EntityHashSet>,
+) {
+    for (entity, frustum, global, follow, culling) in &mut cameras {
+        let Some(converted) = convert(frustum, global.translation()) else {
+            if warned.insert(entity) {
+                log::warn!(
+                    "{entity}: its Bevy frustum is not finite; keeping the last culling frustum"
+                );
+            }
+            continue;
+        };
+        match culling {
+            Some(mut culling) => {
+                culling.frustum = converted;
+                culling.mode = follow.mode;
+            }
+            None => {
+                commands
+                    .entity(entity)
+                    .insert(CullingCamera::new(converted).with_mode(follow.mode));
+            }
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! Culling cameras that follow bevy_camera's `Frustum` (feature
+//! `bevy_camera`): the list equals the oracle over the converted frustum,
+//! and agrees with Bevy's own box test for this scene.
+#![cfg(feature = "bevy_camera")]
+
+use bevy_app::prelude::*;
+use bevy_camera::primitives::{Aabb as BevyAabb, Frustum as BevyFrustum};
+use bevy_camera::{CameraProjection, PerspectiveProjection};
+use bevy_rtree::plugin::*;
+use bevy_rtree::scene::SceneRng;
+use bevy_rtree::{Aabb, CullMode};
+use bevy_transform::prelude::*;
+use glam::{Quat, Vec3};
+
+/// What Bevy's frustum update computes for a perspective camera (infinite
+/// reverse-z projection, far plane at 120 m).
+fn bevy_frustum(transform: &Transform) -> BevyFrustum {
+    let projection = PerspectiveProjection {
+        fov: 1.0,
+        aspect_ratio: 16.0 / 9.0,
+        near: 0.1,
+        far: 120.0,
+        ..PerspectiveProjection::default()
+    };
+    projection.compute_frustum(&GlobalTransform::from(*transform))
+}
+
+#[test]
+fn a_bevy_camera_culls_like_bevy_and_like_the_oracle() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    let mut rng = SceneRng::new(21);
+    let mut boxes = Vec::new();
+    for _ in 0..2_000 {
+        let center = Vec3::new(
+            rng.range(-100.0, 100.0),
+            rng.range(-10.0, 10.0),
+            rng.range(-100.0, 100.0),
+        );
+        let aabb =
+            Aabb::from_center_half_extents(center, Vec3::splat(rng.range(0.2, 2.0))).unwrap();
+        let e = app.world_mut().spawn(SpatialBounds(aabb)).id();
+        boxes.push((e, aabb));
+    }
+    let mut transform =
+        Transform::from_xyz(5.0, 2.0, 3.0).with_rotation(Quat::from_rotation_y(0.4));
+    let camera = app
+        .world_mut()
+        .spawn((
+            bevy_frustum(&transform),
+            GlobalTransform::from(transform),
+            FollowBevyFrustum::default(),
+        ))
+        .id();
+    for frame in 0..3 {
+        app.update();
+        let culling = *app
+            .world()
+            .get::<CullingCamera>(camera)
+            .expect("the plugin adds the culling camera");
+        assert_eq!(culling.mode, CullMode::Conservative);
+        let visible = app
+            .world()
+            .get::<VisibleEntityList>(camera)
+            .unwrap()
+            .entities()
+            .to_vec();
+        let oracle = layer_oracle::<SpatialBounds>(app.world_mut());
+        assert_eq!(
+            visible,
+            oracle.visible(&culling.frustum, CullMode::Conservative),
+            "frame {frame}"
+        );
+        let bevy = app.world().get::<BevyFrustum>(camera).unwrap();
+        let mut by_bevy: Vec<_> = boxes
+            .iter()
+            .filter(|(_, b)| bevy.intersects_obb_identity(&BevyAabb::from_min_max(b.min, b.max)))
+            .map(|(e, _)| *e)
+            .collect();
+        by_bevy.sort_unstable();
+        assert!(visible.len() > 50, "the camera sees part of the field");
+        assert_eq!(
+            visible, by_bevy,
+            "frame {frame}: same answer as Bevy's own test"
+        );
+        // The camera turns; Bevy would update its Frustum, we do it here.
+        transform.rotate_y(0.7);
+        let world = app.world_mut();
+        *world.get_mut::<BevyFrustum>(camera).unwrap() = bevy_frustum(&transform);
+        *world.get_mut::<GlobalTransform>(camera).unwrap() = GlobalTransform::from(transform);
+    }
+}
