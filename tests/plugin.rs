@@ -468,3 +468,56 @@ fn spatial_query_answers_like_the_oracle_from_any_system() {
     assert_eq!(answers.nearest.len(), 3);
     assert!(!answers.within.is_empty() && !answers.sphere.is_empty());
 }
+
+/// Collects warnings so a test can count them (one logger per test binary).
+struct CapturedLog(std::sync::Mutex<Vec<String>>);
+
+impl log::Log for CapturedLog {
+    fn enabled(&self, metadata: &log::Metadata) -> bool {
+        metadata.level() <= log::Level::Warn
+    }
+    fn log(&self, record: &log::Record) {
+        self.0.lock().unwrap().push(record.args().to_string());
+    }
+    fn flush(&self) {}
+}
+
+static CAPTURED: CapturedLog = CapturedLog(std::sync::Mutex::new(Vec::new()));
+
+#[test]
+fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
+    let _ = log::set_logger(&CAPTURED);
+    log::set_max_level(log::LevelFilter::Warn);
+    let mut app = app();
+    // Other tests in this binary log too: give this entity an id none of
+    // them reaches.
+    for i in 0..5_000 {
+        app.world_mut().spawn(unit_at(i as f32));
+    }
+    let bad = app.world_mut().spawn(unit_at(0.0)).id();
+    app.update();
+    for x in [f32::NAN, f32::INFINITY, f32::NAN] {
+        app.world_mut()
+            .get_mut::<SpatialBounds>(bad)
+            .unwrap()
+            .0
+            .min
+            .x = x;
+        app.update();
+        assert_eq!(
+            diagnostics(&app).sync.invalid_skipped,
+            1,
+            "counted every time"
+        );
+    }
+    let name = bad.to_string();
+    let warnings = CAPTURED
+        .0
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|line| line.starts_with(&format!("{name} ")))
+        .count();
+    assert_eq!(warnings, 1, "logged once");
+    assert_eq!(diagnostics(&app).invalid_total, 3);
+}

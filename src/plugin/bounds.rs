@@ -15,9 +15,10 @@ use crate::geometry::Aabb;
 /// A box that is not valid (NaN, infinite, inverted, beyond
 /// [`MAX_COORD`](crate::MAX_COORD)) takes the entity *out* of the index until
 /// it gets a valid box again: an entity whose position is unknown is found by
-/// no query. The first time this happens a warning names the entity, and
-/// [`SpatialDiagnostics`](crate::plugin::SpatialDiagnostics) counts it every
-/// frame it is skipped.
+/// no query. The first time this happens to an entity a warning names it
+/// (once in the entity's life), and
+/// [`SpatialDiagnostics`](crate::plugin::SpatialDiagnostics) counts every
+/// invalid box that is set.
 ///
 /// ```
 /// use bevy_ecs::prelude::*;

@@ -120,7 +120,6 @@ impl<L: Component> SpatialIndex<L> {
 
     /// Takes `entity` out of the index if it is there.
     pub(crate) fn remove(&mut self, entity: Entity) -> bool {
-        self.warned.remove(&entity);
         match self.proxies.remove(&entity) {
             Some(id) => {
                 // The handle came from this tree, so removal cannot fail.
@@ -188,7 +187,6 @@ pub(crate) fn sync_layer<L: Component>(
             }
             continue;
         }
-        index.warned.remove(&entity);
         match index.proxies.get(&entity) {
             Some(&id) => {
                 // The box was validated above and the handle is live.
@@ -244,6 +242,9 @@ pub(crate) fn remove_from_layer<L: Component>(
     index: &mut SpatialIndex<L>,
     diagnostics: &mut SpatialDiagnostics,
 ) {
+    // Gone for good (or until it returns as a new entity): forget that it
+    // was warned about, so the set stays as small as the live bad entities.
+    index.warned.remove(&entity);
     if index.remove(entity) {
         diagnostics.sync.removed += 1;
     }
