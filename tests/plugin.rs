@@ -521,3 +521,29 @@ fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
     assert_eq!(warnings, 1, "logged once");
     assert_eq!(diagnostics(&app).invalid_total, 3);
 }
+
+#[test]
+fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(f32::NAN, JoinMode::Euclidean);
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let barrel = app.world_mut().spawn((unit_at(1.5), Barrel)).id();
+    app.update();
+    assert!(
+        app.world()
+            .resource::<SpatialJoin<Enemy, Barrel>>()
+            .pairs()
+            .is_empty()
+    );
+    // Nothing changed: not recomputed (and not reported) again.
+    app.update();
+    assert_eq!(diagnostics(&app).joins.runs, 0);
+    app.world_mut()
+        .resource_mut::<SpatialJoin<Enemy, Barrel>>()
+        .distance = 1.0;
+    app.update();
+    assert_eq!(
+        app.world().resource::<SpatialJoin<Enemy, Barrel>>().pairs(),
+        [(enemy, barrel)]
+    );
+}

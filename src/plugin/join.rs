@@ -53,7 +53,7 @@ pub struct SpatialJoin<A: Component, B: Component> {
     previous: Vec<(Entity, Entity)>,
     /// What the pairs were computed from: both layers' generations, the
     /// distance and the mode.
-    computed_from: Option<(u64, u64, f32, JoinMode)>,
+    computed_from: Option<(u64, u64, u32, JoinMode)>,
     workspace: QueryWorkspace,
     _layers: PhantomData<fn() -> (A, B)>,
 }
@@ -154,7 +154,14 @@ pub(crate) fn run_join<A: Component, B: Component>(
     mut diagnostics: ResMut<SpatialDiagnostics>,
 ) {
     let join = &mut *join;
-    let key = (a.generation(), b.generation(), join.distance, join.mode);
+    // The distance by its bits, so that a NaN distance compares equal to
+    // itself and is reported once, not every frame.
+    let key = (
+        a.generation(),
+        b.generation(),
+        join.distance.to_bits(),
+        join.mode,
+    );
     if join.computed_from == Some(key) {
         return;
     }
