@@ -1,0 +1,707 @@
+//! The tables and plots of a run: markdown for stdout and
+//! `docs/accuracy_cost.md`, SVG figures for `docs/`.
+
+use std::fmt::Write as _;
+
+use bevy_rtree::TreeSettings;
+use bevy_rtree::scene::TownScene;
+
+use crate::svg::{Figure, Kind, Panel, Series};
+use crate::{
+    BOX_QUERIES, BOX_QUERY_HALF, BUILD_REPS, BoxCost, CHURNED_CULL_REPS, CULL_REPS, Contender,
+    FrameFigures, Knob, QUERY_REPS, RAY_REPS, SEED, WIDTH_REPS, WIDTHS, WidthFigures, mean, median,
+    min_max,
+};
+
+/// Everything the tables and plots are made of.
+pub struct Report<'a> {
+    pub count: usize,
+    pub frames: usize,
+    pub warmup: usize,
+    pub contenders: &'a [Contender],
+    /// The contender with the crate's default settings and width.
+    pub default: usize,
+    pub widths: &'a WidthFigures,
+    pub figures: &'a FrameFigures,
+    /// Oracle answers per box query on the churned trees.
+    pub true_answers: f64,
+    pub run_seconds: f64,
+    /// 1-minute load average at the start and the end of the run.
+    pub load: (Option<String>, Option<String>),
+}
+
+/// Logical core count and CPU model, from `/proc/cpuinfo` where there is one.
+fn machine() -> String {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let cores = match info.lines().filter(|l| l.starts_with("processor")).count() {
+        0 => std::thread::available_parallelism().map_or(0, |n| n.get()),
+        n => n,
+    };
+    let model = info
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("model name")
+                .and_then(|rest| rest.split_once(':'))
+                .map(|(_, m)| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "CPU model unknown".to_string());
+    format!("{cores} logical cores, {model}")
+}
+
+/// The 1-minute load average, where the system reports one: on a shared
+/// machine other work lengthens every time, and readers should know.
+pub fn load_average() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    text.split_whitespace().next().map(str::to_string)
+}
+
+/// `100000` as `100,000`.
+fn thousands(n: usize) -> String {
+    let digits = n.to_string();
+    let mut out = String::new();
+    for (i, d) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(d);
+    }
+    out
+}
+
+/// Milliseconds with about three significant digits.
+pub fn ms(v: f64) -> String {
+    if v >= 100.0 {
+        format!("{v:.0}")
+    } else if v >= 10.0 {
+        format!("{v:.1}")
+    } else if v >= 1.0 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+fn percent(part: u64, whole: u64) -> String {
+    format!("{:.1}", 100.0 * part as f64 / whole.max(1) as f64)
+}
+
+impl Report<'_> {
+    fn command(&self) -> String {
+        let mut command = "cargo run --release --example accuracy_cost".to_string();
+        let mut args = String::new();
+        if self.count != TownScene::STANDARD_COUNT {
+            let _ = write!(args, " --count {}", self.count);
+        }
+        if self.frames != 60 {
+            let _ = write!(args, " --frames {}", self.frames);
+        }
+        if self.warmup != 0 {
+            let _ = write!(args, " --warmup {}", self.warmup);
+        }
+        if !args.is_empty() {
+            let _ = write!(command, " --{args}");
+        }
+        command
+    }
+
+    fn default(&self) -> &Contender {
+        &self.contenders[self.default]
+    }
+
+    fn by_knob(&self, knob: Knob) -> impl Iterator<Item = &Contender> {
+        self.contenders.iter().filter(move |c| c.knob == knob)
+    }
+
+    /// The width contenders in the order of `WIDTHS` (8 is the default tree).
+    fn widths(&self) -> [&Contender; 3] {
+        WIDTHS.map(|w| {
+            self.contenders
+                .iter()
+                .find(|c| c.width == w && c.settings == TreeSettings::default())
+                .expect("a contender per width")
+        })
+    }
+
+    /// The bounds contenders, the default marked.
+    fn bounds_rows(&self) -> impl Iterator<Item = (String, &Contender)> {
+        self.contenders
+            .iter()
+            .filter(|c| c.knob != Knob::Width)
+            .map(|c| {
+                let label = if c.is_default() {
+                    format!("**{} (default)**", c.label)
+                } else {
+                    c.label.clone()
+                };
+                (label, c)
+            })
+    }
+
+    /// "after N frames", counting the warm-up.
+    fn churn(&self) -> String {
+        format!("after {} frames", self.warmup + self.frames)
+    }
+
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        self.header(&mut s);
+        self.bounds(&mut s);
+        self.culling(&mut s);
+        self.joins(&mut s);
+        self.node_width(&mut s);
+        self.rays(&mut s);
+        s
+    }
+
+    fn header(&self, s: &mut String) {
+        let _ = writeln!(s, "# Accuracy against time\n");
+        let _ = writeln!(
+            s,
+            "Generated by `{}` (examples/accuracy_cost); do not edit by hand.\n",
+            self.command()
+        );
+        let load = |l: &Option<String>| l.clone().unwrap_or_else(|| "n/a".into());
+        let _ = writeln!(
+            s,
+            "- Machine: {}; 1-minute load average {} at the start of the run, {} at \
+             the end. The machine is shared with other work: distrust differences \
+             under ~15 %.",
+            machine(),
+            load(&self.load.0),
+            load(&self.load.1)
+        );
+        let warmup = if self.warmup > 0 {
+            format!("{} untimed warm-up frames, then ", self.warmup)
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            s,
+            "- Scene: town (BENCHMARK.md), {} entities, seed {SEED}; {warmup}{} \
+             measured frames, 10 % of the entities moving in each. The run took \
+             {:.0} s.",
+            thousands(self.count),
+            self.frames,
+            self.run_seconds
+        );
+        let _ = writeln!(
+            s,
+            "- Single-threaded; times are medians of single runs. Every answer \
+             was asserted equal to the brute-force oracle's on the same frame \
+             (rays: see section 5); the accuracy figures are counted from those \
+             answers, not estimated.\n"
+        );
+    }
+
+    fn bounds(&self, s: &mut String) {
+        let _ = writeln!(s, "## 1. Enlarged bounds (TreeSettings)\n");
+        let _ = writeln!(
+            s,
+            "Each policy is bulk-loaded from the same boxes at width 8 and lives \
+             through the same frames: every moved entity is `update`d, then \
+             `optimize` repairs all pending churn. Settings not varied in a row \
+             keep their defaults (absolute margin 0.1 m, fraction 0, displacement \
+             factor 4), except that the fraction rows set the absolute margin \
+             to 0.\n"
+        );
+        let _ = writeln!(s, "### Update side\n");
+        let _ = writeln!(
+            s,
+            "Per measured frame ({} moves): median and mean of update + optimize, \
+             and the median of optimize alone. Moves: how the tree absorbed them \
+             over the measured frames (in place: inside the fat box; in leaf: new \
+             fat box inside the leaf's bound; grown: the leaf's bound grew; \
+             reinserted: from the root).\n",
+            thousands(self.count / 10)
+        );
+        let _ = writeln!(
+            s,
+            "| enlarged bounds | update + optimize, median (ms) | mean (ms) | optimize alone, median (ms) | moves in place / in leaf / grown / reinserted (%) | repacks per frame |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---|---:|");
+        for (label, c) in self.bounds_rows() {
+            let m = &c.moves;
+            let total =
+                m.moves_in_place + m.moves_in_leaf + m.moves_leaf_grown + m.moves_reinserted;
+            let _ = writeln!(
+                s,
+                "| {label} | {} | {} | {} | {} / {} / {} / {} | {:.1} |",
+                ms(median(&c.update_ms)),
+                ms(mean(&c.update_ms)),
+                ms(median(&c.optimize_ms)),
+                percent(m.moves_in_place, total),
+                percent(m.moves_in_leaf, total),
+                percent(m.moves_leaf_grown, total),
+                percent(m.moves_reinserted, total),
+                m.repacks as f64 / self.frames as f64,
+            );
+        }
+        let _ = writeln!(
+            s,
+            "\nIn {} frames an entity moves {:.1} times on average, each time by its \
+             fixed step (at most 0.1 m per axis). A large margin can absorb all of \
+             that drift, so its in-place share is higher than it would stay in a \
+             long-running game, where every entity eventually leaves any fat box; \
+             `-- --warmup N` measures after N untimed frames. The scene's \
+             constant per-entity steps also suit the displacement factor, which \
+             stretches the fat box along the last move.\n",
+            self.warmup + self.frames,
+            (self.warmup + self.frames) as f64 / 10.0
+        );
+        let _ = writeln!(s, "### Query side\n");
+        let _ = writeln!(
+            s,
+            "{} box queries of half extent {BOX_QUERY_HALF} m around the centres of \
+             random entities, the same entities before and after the churn ({:.1} \
+             true answers per query on the churned trees); time: \
+             median of {QUERY_REPS} runs of the whole set, trees interleaved, on the \
+             freshly loaded trees and {}. Extra candidates: entries tested \
+             (`QueryStats::entries_tested`) per query beyond the oracle's answer \
+             count. Nodes: nodes visited per query. Frustum: conservative cull of \
+             each measured frame's camera, {CHURNED_CULL_REPS} passes, median, on \
+             the churned trees. Answers are exact in every row: imprecision here \
+             costs work, never correctness.\n",
+            thousands(BOX_QUERIES),
+            self.true_answers,
+            self.churn()
+        );
+        let _ = writeln!(
+            s,
+            "| enlarged bounds | box queries, fresh (ms) | box queries, churned (ms) | extra candidates / query, fresh | extra candidates / query, churned | nodes / query, fresh | nodes / query, churned | frustum cull, churned (ms) |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        for (label, c) in self.bounds_rows() {
+            let _ = writeln!(
+                s,
+                "| {label} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                ms(c.fresh.ms),
+                ms(c.churned.ms),
+                c.fresh.extra_per_query,
+                c.churned.extra_per_query,
+                c.fresh.nodes_per_query,
+                c.churned.nodes_per_query,
+                ms(c.churned_cull_ms),
+            );
+        }
+        let _ = writeln!(
+            s,
+            "\n![Enlarged bounds: update and query time](accuracy_cost_margin_time.svg)\n\n\
+             ![Enlarged bounds: extra candidates and nodes per box query](accuracy_cost_margin_extra.svg)\n"
+        );
+    }
+
+    fn culling(&self, s: &mut String) {
+        let f = self.figures;
+        let (fp_lo, fp_hi) = min_max(&f.cull_false_positives);
+        let (share_lo, share_hi) = min_max(&f.cull_false_share);
+        let _ = writeln!(
+            s,
+            "## 2. Frustum culling: conservative vs exact (CullMode)\n"
+        );
+        let _ = writeln!(
+            s,
+            "The default tree after each measured frame's updates, culled with that \
+             frame's camera: {CULL_REPS} timed culls per mode and frame, the modes \
+             interleaved. False positives per frame: conservative count minus exact \
+             count (the exact answer equals the oracle's exact mode, the \
+             conservative one the oracle's conservative mode), and their share of \
+             the exact visible set.\n"
+        );
+        let _ = writeln!(
+            s,
+            "| mode | ms per cull | visible per frame (median) | false positives per frame: median (min–max) | share of the visible set: median (min–max) |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        let visible = median(&f.visible_exact);
+        let _ = writeln!(
+            s,
+            "| **conservative (default)** | {} | {:.0} | {:.0} ({fp_lo:.0}–{fp_hi:.0}) | {:.2} % ({:.2}–{:.2} %) |",
+            ms(median(&f.cull_ms[0])),
+            visible + median(&f.cull_false_positives),
+            median(&f.cull_false_positives),
+            100.0 * median(&f.cull_false_share),
+            100.0 * share_lo,
+            100.0 * share_hi,
+        );
+        let _ = writeln!(
+            s,
+            "| exact | {} | {visible:.0} | 0 | 0 % |",
+            ms(median(&f.cull_ms[1])),
+        );
+        let _ = writeln!(
+            s,
+            "\nExact takes {:.2}x the conservative time.\n",
+            median(&f.cull_ms[1]) / median(&f.cull_ms[0])
+        );
+    }
+
+    fn joins(&self, s: &mut String) {
+        let f = self.figures;
+        let (extra_lo, extra_hi) = min_max(&f.join_extra);
+        let (share_lo, share_hi) = min_max(&f.join_extra_share);
+        let _ = writeln!(s, "## 3. Cross join: Chebyshev vs Euclidean (JoinMode)\n");
+        let _ = writeln!(
+            s,
+            "Enemies (entities 0..10,000) x barrels (10,000..15,000) within {} m, \
+             on two width-8 trees kept up to date through the frames; one timed \
+             join per mode and measured frame, the first mode alternating. Extra \
+             pairs: Chebyshev pairs minus Euclidean pairs (each list equal to the \
+             oracle's in its mode), and their share of the Euclidean pairs.\n",
+            TownScene::JOIN_DISTANCE
+        );
+        let _ = writeln!(
+            s,
+            "| mode | ms per join | pairs per frame (median) | extra pairs per frame: median (min–max) | share of the exact pairs: median (min–max) |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        let pairs = median(&f.pairs_euclidean);
+        let _ = writeln!(
+            s,
+            "| **Euclidean (default)** | {} | {pairs:.0} | 0 | 0 % |",
+            ms(median(&f.join_ms[1])),
+        );
+        let _ = writeln!(
+            s,
+            "| Chebyshev | {} | {:.0} | {:.0} ({extra_lo:.0}–{extra_hi:.0}) | {:.1} % ({:.1}–{:.1} %) |",
+            ms(median(&f.join_ms[0])),
+            pairs + median(&f.join_extra),
+            median(&f.join_extra),
+            100.0 * median(&f.join_extra_share),
+            100.0 * share_lo,
+            100.0 * share_hi,
+        );
+        let _ = writeln!(
+            s,
+            "\nChebyshev takes {:.2}x the Euclidean time.\n",
+            median(&f.join_ms[0]) / median(&f.join_ms[1])
+        );
+    }
+
+    fn node_width(&self, s: &mut String) {
+        let w = self.widths;
+        let _ = writeln!(s, "## 4. Node width (RTree<u32, W>)\n");
+        let _ = writeln!(
+            s,
+            "Default settings at every width. Bulk build: median of {BUILD_REPS} \
+             loads of the whole scene, widths interleaved. Update: as in section 1. \
+             Box queries and frustum culls: as in section 1, on the churned trees. \
+             Rays: batched `cast_rays`, first hit, on the churned trees (one set of \
+             each kind from the final frame). Join: Euclidean enemies x barrels on \
+             kept trees of that width. Rays and joins: median of {WIDTH_REPS} runs, \
+             widths interleaved, answers equal to the oracle's.\n"
+        );
+        let _ = writeln!(
+            s,
+            "| width | bulk build (ms) | update + optimize (ms/frame) | {} box queries (ms) | frustum cull (ms) | 1,000 incoherent rays (ms) | 1,000 coherent rays (ms) | cross join (ms) |",
+            thousands(BOX_QUERIES)
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        for (i, c) in self.widths().iter().enumerate() {
+            let label = if c.is_default() {
+                format!("**{} (default)**", c.width)
+            } else {
+                c.width.to_string()
+            };
+            let _ = writeln!(
+                s,
+                "| {label} | {} | {} | {} | {} | {} | {} | {} |",
+                ms(w.build_ms[i]),
+                ms(median(&c.update_ms)),
+                ms(c.churned.ms),
+                ms(c.churned_cull_ms),
+                ms(w.rays_ms[i][0]),
+                ms(w.rays_ms[i][1]),
+                ms(w.join_ms[i]),
+            );
+        }
+        let _ = writeln!(s, "\nThe work behind those times, on the churned trees:\n");
+        let _ = writeln!(
+            s,
+            "| width | extra candidates / box query | nodes / box query | height | nodes |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        for c in self.widths() {
+            let (height, nodes) = c.index.shape();
+            let _ = writeln!(
+                s,
+                "| {} | {:.1} | {:.1} | {height} | {} |",
+                c.width,
+                c.churned.extra_per_query,
+                c.churned.nodes_per_query,
+                thousands(nodes)
+            );
+        }
+        let _ = writeln!(s, "\n![Node width: times](accuracy_cost_width.svg)\n");
+    }
+
+    fn rays(&self, s: &mut String) {
+        let f = self.figures;
+        let _ = writeln!(s, "## 5. Rays: batched cast_rays vs a loop of cast_ray\n");
+        let _ = writeln!(
+            s,
+            "First hit, on the default tree after each measured frame's updates; \
+             {RAY_REPS} timed runs of each per frame, batched and single \
+             alternating. The two answers \
+             were asserted equal (key and `t`) on all {} frames, and equal to the \
+             oracle's on {} of them (the ray oracle tests every box, so it runs on \
+             every tenth frame and the last).\n",
+            f.ray_frames_compared, f.ray_frames_oracle
+        );
+        let _ = writeln!(
+            s,
+            "| 1,000 rays | batched cast_rays (ms) | loop of cast_ray (ms) | loop / batched | rays that hit (median) |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        for (r, name) in ["incoherent (200 m)", "coherent (500 m, pixel grid)"]
+            .iter()
+            .enumerate()
+        {
+            let batched = median(&f.ray_ms[r][0]);
+            let single = median(&f.ray_ms[r][1]);
+            let _ = writeln!(
+                s,
+                "| {name} | {} | {} | {:.2} | {:.0} |",
+                ms(batched),
+                ms(single),
+                single / batched,
+                median(&f.ray_hits[r])
+            );
+        }
+        let _ = writeln!(
+            s,
+            "\n![Mode comparisons: culling, joins, rays](accuracy_cost_modes.svg)"
+        );
+    }
+
+    /// The SVG files and their figures.
+    pub fn figures(&self) -> Vec<(&'static str, Figure)> {
+        let [margin_time, margin_extra] = self.bounds_figures();
+        vec![
+            ("accuracy_cost_margin_time.svg", margin_time),
+            ("accuracy_cost_margin_extra.svg", margin_extra),
+            ("accuracy_cost_width.svg", self.width_figure()),
+            ("accuracy_cost_modes.svg", self.modes_figure()),
+        ]
+    }
+
+    fn bounds_figures(&self) -> [Figure; 2] {
+        // One categorical x axis for every bounds policy: absolute margins,
+        // then fractions, then displacement factors. The default tree appears
+        // in the first group and again as x4 in the last, where it belongs.
+        let mut bounds: Vec<&Contender> = Vec::new();
+        let mut ticks: Vec<String> = Vec::new();
+        let mut groups = Vec::new();
+        for (knob, name) in [
+            (Knob::Margin, "margin (m)"),
+            (Knob::Fraction, "fraction of extent"),
+            (Knob::Displacement, "displacement factor"),
+        ] {
+            let mut members: Vec<(&Contender, String)> =
+                self.by_knob(knob).map(|c| (c, c.tick.clone())).collect();
+            if knob == Knob::Displacement {
+                let d = self.default();
+                members.push((d, format!("x{}", d.settings.displacement_factor)));
+                members.sort_by(|a, b| {
+                    a.0.settings
+                        .displacement_factor
+                        .total_cmp(&b.0.settings.displacement_factor)
+                });
+            }
+            groups.push((name.to_string(), members.len()));
+            for (c, tick) in members {
+                bounds.push(c);
+                ticks.push(tick);
+            }
+        }
+        let values = |get: &dyn Fn(&Contender) -> f64| -> Vec<Option<f64>> {
+            bounds.iter().map(|c| Some(get(c))).collect()
+        };
+        let fresh_and_churned = |get: &dyn Fn(&BoxCost) -> f64| {
+            vec![
+                Series::new("freshly loaded", values(&|c| get(&c.fresh))),
+                Series::new(&self.churn(), values(&|c| get(&c.churned))),
+            ]
+        };
+        let panel = |title: String, y_label: &str, series: Vec<Series>| Panel {
+            title,
+            y_label: y_label.to_string(),
+            categories: ticks.clone(),
+            groups: groups.clone(),
+            series,
+            kind: Kind::Lines,
+        };
+        let time = Figure {
+            title: format!(
+                "Enlarged bounds: update and query time (town, {} entities, width 8)",
+                thousands(self.count)
+            ),
+            columns: 1,
+            panel_width: 860.0,
+            panel_height: 260.0,
+            panels: vec![
+                panel(
+                    format!(
+                        "Update of {} moves + optimize, median per frame",
+                        thousands(self.count / 10)
+                    ),
+                    "ms per frame",
+                    vec![Series::new(
+                        "update + optimize",
+                        values(&|c| median(&c.update_ms)),
+                    )],
+                ),
+                panel(
+                    format!(
+                        "{} box queries (half extent {BOX_QUERY_HALF} m)",
+                        thousands(BOX_QUERIES)
+                    ),
+                    "ms per set",
+                    fresh_and_churned(&|cost| cost.ms),
+                ),
+                panel(
+                    format!("Frustum cull, conservative, {}", self.churn()),
+                    "ms per cull",
+                    vec![Series::new("frustum cull", values(&|c| c.churned_cull_ms))],
+                ),
+            ],
+        };
+        let extra = Figure {
+            title: "Enlarged bounds: traversal work per box query (answers exact)".to_string(),
+            columns: 1,
+            panel_width: 860.0,
+            panel_height: 280.0,
+            panels: vec![
+                panel(
+                    format!(
+                        "Entries tested beyond the true answers ({:.1} per query)",
+                        self.true_answers
+                    ),
+                    "extra candidates per query",
+                    fresh_and_churned(&|cost| cost.extra_per_query),
+                ),
+                panel(
+                    "Nodes visited".to_string(),
+                    "nodes per query",
+                    fresh_and_churned(&|cost| cost.nodes_per_query),
+                ),
+            ],
+        };
+        [time, extra]
+    }
+
+    fn width_figure(&self) -> Figure {
+        let w = self.widths;
+        let contenders = self.widths();
+        let panel = |title: String, y_label: &str, series: Vec<(&str, [f64; 3])>| Panel {
+            title,
+            y_label: y_label.to_string(),
+            categories: WIDTHS.iter().map(usize::to_string).collect(),
+            groups: vec![("node width W (lanes per node)".to_string(), WIDTHS.len())],
+            series: series
+                .into_iter()
+                .map(|(name, v)| Series::new(name, v.map(Some).to_vec()))
+                .collect(),
+            kind: Kind::Lines,
+        };
+        Figure {
+            title: format!(
+                "Node width: build, update and query times (town, {} entities)",
+                thousands(self.count)
+            ),
+            columns: 3,
+            panel_width: 380.0,
+            panel_height: 270.0,
+            panels: vec![
+                panel(
+                    "Bulk build".to_string(),
+                    "ms",
+                    vec![("bulk build", w.build_ms)],
+                ),
+                panel(
+                    "Update + optimize".to_string(),
+                    "ms per frame",
+                    vec![("update", contenders.map(|c| median(&c.update_ms)))],
+                ),
+                panel(
+                    format!("{} box queries", thousands(BOX_QUERIES)),
+                    "ms per set",
+                    vec![("box queries", contenders.map(|c| c.churned.ms))],
+                ),
+                panel(
+                    "Frustum cull".to_string(),
+                    "ms per cull",
+                    vec![("cull", contenders.map(|c| c.churned_cull_ms))],
+                ),
+                panel(
+                    "1,000 rays, batched, first hit".to_string(),
+                    "ms per batch",
+                    vec![
+                        ("incoherent", w.rays_ms.map(|r| r[0])),
+                        ("coherent", w.rays_ms.map(|r| r[1])),
+                    ],
+                ),
+                panel(
+                    format!("Cross join at {} m", TownScene::JOIN_DISTANCE),
+                    "ms per join",
+                    vec![("join", w.join_ms)],
+                ),
+            ],
+        }
+    }
+
+    fn modes_figure(&self) -> Figure {
+        let f = self.figures;
+        let pair = |title: &str, category: String, names: [&str; 2], v: [f64; 2]| Panel {
+            title: title.to_string(),
+            y_label: "ms (median)".to_string(),
+            categories: vec![category],
+            groups: Vec::new(),
+            series: vec![
+                Series::new(names[0], vec![Some(v[0])]),
+                Series::new(names[1], vec![Some(v[1])]),
+            ],
+            kind: Kind::Bars,
+        };
+        let rays = |r: usize| [median(&f.ray_ms[r][0]), median(&f.ray_ms[r][1])];
+        Figure {
+            title: "Mode comparisons on the default tree (town, width 8)".to_string(),
+            columns: 2,
+            panel_width: 420.0,
+            panel_height: 280.0,
+            panels: vec![
+                pair(
+                    "Frustum cull",
+                    format!(
+                        "false positives: {:.0} per frame ({:.2} %)",
+                        median(&f.cull_false_positives),
+                        100.0 * median(&f.cull_false_share)
+                    ),
+                    ["conservative", "exact"],
+                    [median(&f.cull_ms[0]), median(&f.cull_ms[1])],
+                ),
+                pair(
+                    &format!("Cross join at {} m", TownScene::JOIN_DISTANCE),
+                    format!(
+                        "extra pairs: {:.0} per frame ({:.1} %)",
+                        median(&f.join_extra),
+                        100.0 * median(&f.join_extra_share)
+                    ),
+                    ["Euclidean", "Chebyshev"],
+                    [median(&f.join_ms[1]), median(&f.join_ms[0])],
+                ),
+                pair(
+                    "1,000 incoherent rays, first hit",
+                    "same answers".to_string(),
+                    ["batched cast_rays", "loop of cast_ray"],
+                    rays(0),
+                ),
+                pair(
+                    "1,000 coherent rays, first hit",
+                    "same answers".to_string(),
+                    ["batched cast_rays", "loop of cast_ray"],
+                    rays(1),
+                ),
+            ],
+        }
+    }
+}
