@@ -6,8 +6,8 @@ use std::marker::PhantomData;
 use bevy_ecs::prelude::*;
 use glam::{Quat, Vec3};
 
-use super::SpatialDiagnostics;
 use super::bounds::SpatialBounds;
+use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
 use crate::geometry::{Frustum, SpatialError};
 use crate::query::{CullMode, QueryWorkspace};
@@ -128,7 +128,7 @@ pub(crate) fn cull_cameras<L: Component>(
     cameras: Query<(Entity, &CullingCamera<L>)>,
     mut lists: Query<&mut VisibleEntityList, With<CullingCamera<L>>>,
     mut scratch: Local<CullingScratch>,
-    mut diagnostics: ResMut<SpatialDiagnostics>,
+    sink: Res<DiagnosticsSink>,
 ) {
     let scratch = &mut *scratch;
     for mode in [CullMode::Conservative, CullMode::Exact] {
@@ -152,7 +152,7 @@ pub(crate) fn cull_cameras<L: Component>(
         index
             .tree()
             .visible_into(&scratch.frustums, mode, &mut scratch.workspace, out);
-        diagnostics.culling.record(views, &mut scratch.workspace);
+        sink.add(|d| d.culling.record(views, &mut scratch.workspace));
         for (view, &camera) in scratch.cameras.iter().enumerate() {
             out[view].sort_unstable();
             if let Ok(mut list) = lists.get_mut(camera) {

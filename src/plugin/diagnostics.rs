@@ -1,6 +1,8 @@
 //! What the plugin did this frame, so that cost (and its absence) can be
 //! seen and tested without a profiler.
 
+use std::sync::Mutex;
+
 use bevy_ecs::prelude::*;
 
 use super::index::SyncCount;
@@ -56,8 +58,8 @@ pub struct MaintenanceWork {
     pub nodes_repacked: u64,
 }
 
-/// Per-frame counters of what the plugin ran; reset at the start of every
-/// frame (in `First`).
+/// Per-frame counters of what the plugin ran, published at the end of every
+/// frame (in `Last`): read them after the frame, or in the next one.
 ///
 /// A scene that has no culling camera shows `culling.runs == 0`, one without
 /// casters `rays.runs == 0`, and so on: the plugin only does the work a scene
@@ -104,11 +106,36 @@ impl SpatialDiagnostics {
     }
 }
 
-/// Starts a new frame of counters.
-pub(crate) fn reset_diagnostics(mut diagnostics: ResMut<SpatialDiagnostics>) {
+/// Where the plugin's systems and observers add their counts during a frame.
+///
+/// Systems share it read-only (the lock is held for a few additions), so
+/// counting does not force the systems of different layers and query
+/// families to run one after the other.
+#[derive(Resource, Default)]
+pub(crate) struct DiagnosticsSink(Mutex<SpatialDiagnostics>);
+
+impl DiagnosticsSink {
+    pub(crate) fn add(&self, count: impl FnOnce(&mut SpatialDiagnostics)) {
+        // A panic elsewhere while holding the lock leaves plain counters
+        // behind, which are still fine to add to.
+        let mut frame = self
+            .0
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        count(&mut frame);
+    }
+}
+
+/// Publishes the frame's counts (in `Last`) and starts the next frame.
+pub(crate) fn publish_diagnostics(
+    sink: Res<DiagnosticsSink>,
+    mut diagnostics: ResMut<SpatialDiagnostics>,
+) {
+    let mut frame = SpatialDiagnostics::default();
+    sink.add(|counted| frame = std::mem::take(counted));
     *diagnostics = SpatialDiagnostics {
         frame: diagnostics.frame + 1,
-        invalid_total: diagnostics.invalid_total,
-        ..SpatialDiagnostics::default()
+        invalid_total: diagnostics.invalid_total + frame.invalid_total,
+        ..frame
     };
 }

@@ -6,8 +6,8 @@ use std::marker::PhantomData;
 use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
 use bevy_ecs::prelude::*;
 
-use super::SpatialDiagnostics;
 use super::bounds::{NoSpatialIndex, SpatialBounds};
+use super::diagnostics::DiagnosticsSink;
 use crate::geometry::Aabb;
 use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
 
@@ -146,11 +146,8 @@ pub(crate) struct SyncCount {
     pub invalid: u64,
 }
 
-/// Applies the changed boxes of this frame to the index of layer `L`.
-///
-/// New entities are gathered and inserted together: when they outnumber the
-/// entities already indexed (the first frame of a scene) the tree is bulk
-/// loaded, which is several times faster and gives a better tree.
+/// Applies the changed boxes of this frame to the index of a layer `L`
+/// other than the main one: an entity also enters when it gains `L`.
 #[allow(clippy::type_complexity)]
 pub(crate) fn sync_layer<L: Component>(
     mut index: ResMut<SpatialIndex<L>>,
@@ -163,12 +160,38 @@ pub(crate) fn sync_layer<L: Component>(
         ),
     >,
     mut fresh: Local<Vec<(Entity, Aabb)>>,
-    mut diagnostics: ResMut<SpatialDiagnostics>,
+    sink: Res<DiagnosticsSink>,
 ) {
-    let index = &mut *index;
+    apply_changes(&mut index, changed.iter(), &mut fresh, &sink);
+}
+
+/// Applies the changed boxes of this frame to the main index. Gaining the
+/// component is a change of it, so one change test per entity suffices
+/// (the scan over every entity is the plugin's main fixed cost).
+#[allow(clippy::type_complexity)]
+pub(crate) fn sync_main(
+    mut index: ResMut<SpatialIndex>,
+    changed: Query<(Entity, &SpatialBounds), (Without<NoSpatialIndex>, Changed<SpatialBounds>)>,
+    mut fresh: Local<Vec<(Entity, Aabb)>>,
+    sink: Res<DiagnosticsSink>,
+) {
+    apply_changes(&mut index, changed.iter(), &mut fresh, &sink);
+}
+
+/// Updates, inserts or (for invalid boxes) removes each changed entity.
+///
+/// New entities are gathered and inserted together: when they outnumber the
+/// entities already indexed (the first frame of a scene) the tree is bulk
+/// loaded, which is several times faster and gives a better tree.
+fn apply_changes<'a, L: Component>(
+    index: &mut SpatialIndex<L>,
+    changed: impl Iterator<Item = (Entity, &'a SpatialBounds)>,
+    fresh: &mut Vec<(Entity, Aabb)>,
+    sink: &DiagnosticsSink,
+) {
     let mut count = SyncCount::default();
     fresh.clear();
-    for (entity, bounds) in &changed {
+    for (entity, bounds) in changed {
         let aabb = bounds.0;
         if let Err(error) = aabb.validate() {
             if index.remove(entity) {
@@ -216,18 +239,20 @@ pub(crate) fn sync_layer<L: Component>(
     if count.inserted + count.updated + count.removed > 0 {
         index.generation += 1;
     }
-    diagnostics.record_sync(&count);
+    sink.add(|d| d.record_sync(&count));
 }
 
 /// Re-tiles the leaves that churn has degraded, a bounded amount per frame.
 pub(crate) fn maintain_layer<L: Component>(
     mut index: ResMut<SpatialIndex<L>>,
     settings: Res<super::SpatialIndexConfig>,
-    mut diagnostics: ResMut<SpatialDiagnostics>,
+    sink: Res<DiagnosticsSink>,
 ) {
     let repacked = index.tree.optimize(settings.optimize_budget);
-    diagnostics.maintenance.runs += 1;
-    diagnostics.maintenance.nodes_repacked += repacked as u64;
+    sink.add(|d| {
+        d.maintenance.runs += 1;
+        d.maintenance.nodes_repacked += repacked as u64;
+    });
 }
 
 /// Run condition: the layer has degraded leaves waiting for repair.
@@ -240,12 +265,12 @@ pub(crate) fn needs_maintenance<L: Component>(index: Res<SpatialIndex<L>>) -> bo
 pub(crate) fn remove_from_layer<L: Component>(
     entity: Entity,
     index: &mut SpatialIndex<L>,
-    diagnostics: &mut SpatialDiagnostics,
+    sink: &DiagnosticsSink,
 ) {
     // Gone for good (or until it returns as a new entity): forget that it
     // was warned about, so the set stays as small as the live bad entities.
     index.warned.remove(&entity);
     if index.remove(entity) {
-        diagnostics.sync.removed += 1;
+        sink.add(|d| d.sync.removed += 1);
     }
 }

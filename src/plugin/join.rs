@@ -6,7 +6,7 @@ use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
 
-use super::SpatialDiagnostics;
+use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
 use crate::query::{JoinMode, QueryWorkspace};
 
@@ -151,7 +151,7 @@ pub(crate) fn run_join<A: Component, B: Component>(
     b: Res<SpatialIndex<B>>,
     mut started: MessageWriter<PairStarted<A, B>>,
     mut ended: MessageWriter<PairEnded<A, B>>,
-    mut diagnostics: ResMut<SpatialDiagnostics>,
+    sink: Res<DiagnosticsSink>,
 ) {
     let join = &mut *join;
     // The distance by its bits, so that a NaN distance compares equal to
@@ -199,7 +199,7 @@ pub(crate) fn run_join<A: Component, B: Component>(
         join.pairs.clear();
     }
     join.pairs.sort_unstable();
-    diagnostics.joins.record(1, &mut join.workspace);
+    sink.add(|d| d.joins.record(1, &mut join.workspace));
     report_changes(&join.previous, &join.pairs, &mut started, &mut ended);
 }
 

@@ -87,6 +87,7 @@ pub use transform::LocalBounds;
 
 use crate::query::JoinMode;
 use crate::tree::TreeSettings;
+use diagnostics::DiagnosticsSink;
 
 /// Maintains one spatial index per layer and answers the frame's culling,
 /// raycasts and joins.
@@ -167,6 +168,7 @@ impl Plugin for SpatialIndexPlugin {
             optimize_budget: self.optimize_budget,
         })
         .init_resource::<SpatialDiagnostics>()
+        .init_resource::<DiagnosticsSink>()
         .configure_sets(
             self.schedule,
             (
@@ -177,7 +179,7 @@ impl Plugin for SpatialIndexPlugin {
             )
                 .chain(),
         )
-        .add_systems(First, diagnostics::reset_diagnostics)
+        .add_systems(Last, diagnostics::publish_diagnostics)
         .add_observer(opt_back_in);
         #[cfg(feature = "bevy")]
         transform::build(app, self.schedule);
@@ -219,44 +221,56 @@ impl SpatialAppExt for App {
                 .add_plugins(SpatialIndexPlugin::default())
                 .add_spatial_layer::<L>();
         };
-        self.insert_resource(index::SpatialIndex::<L>::new(config.tree))
-            .add_systems(
+        self.insert_resource(index::SpatialIndex::<L>::new(config.tree));
+        if index::is_main_layer::<L>() {
+            self.add_systems(
                 config.schedule,
-                (
-                    index::sync_layer::<L>
-                        .in_set(SpatialIndexSystems::Sync)
-                        .run_if(any_with_component::<L>),
-                    index::maintain_layer::<L>
-                        .in_set(SpatialIndexSystems::Maintain)
-                        .run_if(index::needs_maintenance::<L>),
-                    culling::cull_cameras::<L>
-                        .in_set(SpatialIndexSystems::Queries)
-                        .run_if(any_with_component::<CullingCamera<L>>),
-                    raycast::cast_rays::<L>
-                        .in_set(SpatialIndexSystems::Queries)
-                        .run_if(any_with_component::<RayCaster<L>>),
-                ),
-            )
-            .add_observer(
-                |event: On<Remove<L>>,
-                 mut index: ResMut<SpatialIndex<L>>,
-                 mut diagnostics: ResMut<SpatialDiagnostics>| {
-                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
-                },
-            )
-            .add_observer(
-                |event: On<Add<NoSpatialIndex>>,
-                 mut index: ResMut<SpatialIndex<L>>,
-                 mut diagnostics: ResMut<SpatialDiagnostics>| {
-                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
-                },
+                index::sync_main
+                    .in_set(SpatialIndexSystems::Sync)
+                    .run_if(any_with_component::<SpatialBounds>),
             );
+        } else {
+            self.add_systems(
+                config.schedule,
+                index::sync_layer::<L>
+                    .in_set(SpatialIndexSystems::Sync)
+                    .run_if(any_with_component::<L>),
+            );
+        }
+        self.add_systems(
+            config.schedule,
+            (
+                index::maintain_layer::<L>
+                    .in_set(SpatialIndexSystems::Maintain)
+                    .run_if(index::needs_maintenance::<L>),
+                culling::cull_cameras::<L>
+                    .in_set(SpatialIndexSystems::Queries)
+                    .run_if(any_with_component::<CullingCamera<L>>),
+                raycast::cast_rays::<L>
+                    .in_set(SpatialIndexSystems::Queries)
+                    .run_if(any_with_component::<RayCaster<L>>),
+            ),
+        )
+        .add_observer(
+            |event: On<Remove<L>>,
+             mut index: ResMut<SpatialIndex<L>>,
+             sink: Res<DiagnosticsSink>| {
+                index::remove_from_layer(event.entity, &mut index, &sink);
+            },
+        )
+        .add_observer(
+            |event: On<Add<NoSpatialIndex>>,
+             mut index: ResMut<SpatialIndex<L>>,
+             sink: Res<DiagnosticsSink>| {
+                index::remove_from_layer(event.entity, &mut index, &sink);
+            },
+        );
         if !index::is_main_layer::<L>() {
             self.add_observer(
                 |event: On<Remove<SpatialBounds>>,
                  mut index: ResMut<SpatialIndex<L>>,
-                 mut diagnostics: ResMut<SpatialDiagnostics>| {
-                    index::remove_from_layer(event.entity, &mut index, &mut diagnostics);
+                 sink: Res<DiagnosticsSink>| {
+                    index::remove_from_layer(event.entity, &mut index, &sink);
                 },
             );
         }

@@ -5,8 +5,8 @@ use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
 
-use super::SpatialDiagnostics;
 use super::bounds::SpatialBounds;
+use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
 use crate::geometry::{Ray, SpatialError};
 use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
@@ -113,7 +113,7 @@ pub(crate) fn cast_rays<L: Component>(
     casters: Query<(Entity, &RayCaster<L>)>,
     mut answers: Query<&mut RayCasterHits, With<RayCaster<L>>>,
     mut scratch: Local<RayScratch>,
-    mut diagnostics: ResMut<SpatialDiagnostics>,
+    sink: Res<DiagnosticsSink>,
 ) {
     let scratch = &mut *scratch;
     scratch.modes.clear();
@@ -138,9 +138,7 @@ pub(crate) fn cast_rays<L: Component>(
             &mut scratch.workspace,
             &mut scratch.results,
         );
-        diagnostics
-            .rays
-            .record(scratch.rays.len(), &mut scratch.workspace);
+        sink.add(|d| d.rays.record(scratch.rays.len(), &mut scratch.workspace));
         for (i, &caster) in scratch.casters.iter().enumerate() {
             let Ok(mut answer) = answers.get_mut(caster) else {
                 continue;
