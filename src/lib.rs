@@ -127,7 +127,8 @@
 //!   frustum edge that is really outside; [`CullMode::Exact`] removes those
 //!   with a separating-axis test in `f64`.
 //! - [`JoinMode::Chebyshev`] reports pairs whose gap is within `d` on every
-//!   axis, a superset of the exact [`JoinMode::Euclidean`] pairs (default).
+//!   axis, a superset of the exact [`JoinMode::Euclidean`] pairs (default);
+//!   measured on the standard scene it is no faster, and adds about 9 % pairs.
 //!
 //! The enlarged-bounds settings ([`TreeSettings`]) trade update time against
 //! query work only: answers stay exact.
