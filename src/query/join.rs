@@ -44,7 +44,7 @@ impl JoinMode {
 
 /// `aabb` grown by `distance` on every side, rounded outward, so that a lane
 /// overlap test against it never dismisses a pair within `distance`.
-#[inline]
+#[inline(always)]
 fn reach(aabb: &Aabb, distance: f32) -> Aabb {
     let d = Vec3::splat(distance);
     Aabb {
@@ -63,7 +63,7 @@ fn used_lanes<const W: usize>(node: &Node<W>) -> u32 {
 }
 
 /// The used lanes of `node` whose box can be within `distance` of `bound`.
-#[inline]
+#[inline(always)]
 fn reachable_lanes<const W: usize>(node: &Node<W>, bound: &Aabb, distance: f32) -> u32 {
     node.overlap_mask(&reach(bound, distance)) & used_lanes(node)
 }
@@ -85,9 +85,23 @@ fn join_lane_pairs<const W: usize>(
     ws: &mut QueryWorkspace,
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
+    // Only lanes that can reach the other node at all take part: two nodes
+    // that overlap a little pair few of their lanes, and this dismisses the
+    // rest with two mask tests instead of one per lane.
+    let (a_lanes, b_lanes) = if same_node {
+        (used_lanes(na), used_lanes(nb))
+    } else {
+        (
+            reachable_lanes(na, &nb.lanes_union(), distance),
+            reachable_lanes(nb, &na.lanes_union(), distance),
+        )
+    };
     for i in 0..na.len() {
+        if a_lanes & (1 << i) == 0 {
+            continue;
+        }
         let lane_box = na.lane_box(i);
-        let mut mask = reachable_lanes(nb, &lane_box, distance);
+        let mut mask = reachable_lanes(nb, &lane_box, distance) & b_lanes;
         if same_node {
             mask &= !((2u32 << i) - 1);
             if !na.is_leaf() {
