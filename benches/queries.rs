@@ -66,8 +66,8 @@ use std::time::{Duration, Instant};
 use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::TownScene;
 use bevy_rtree::{
-    Aabb, CullMode, Frustum, JoinMode, ProxyId, QueryWorkspace, RTree, Ray, RayHit, RayMode,
-    RayResults,
+    Aabb, CullMode, Frustum, JoinMode, PreparedRay, ProxyId, QueryWorkspace, RTree, Ray, RayHit,
+    RayMode, RayResults,
 };
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use glam::Vec3;
@@ -96,9 +96,11 @@ const SELF_JOIN_DISTANCE: f32 = 0.0;
 type RstarBox = GeomWithData<Rectangle<[f32; 3]>, u32>;
 
 // ---------------------------------------------------------------------------
-// The predicates of SEMANTICS.md, restated for the peers. The crate keeps its
-// own copies `pub(crate)`; these follow the same formulas, operation for
-// operation, so that a peer's answer can be compared bit for bit.
+// The predicates of SEMANTICS.md for the peers. Rays use the crate's own S4
+// test (`PreparedRay`). The frustum test is restated over the active planes
+// only, in the crate's operation order, so a peer's answer compares bit for
+// bit and its traversal is not slowed by inactive planes; the brute force's
+// slab loop is written out over lane blocks so that it vectorises.
 
 /// A frustum's active planes, ready for the conservative test (S7).
 #[derive(Clone, Copy)]
@@ -138,13 +140,15 @@ impl Planes {
     }
 }
 
-/// A canonical ray with `1 / dir`, for the S4 slab test.
+/// A canonical ray with `1 / dir` spelled out for the vectorised brute
+/// force, and the crate's own S4 test (`PreparedRay`) for the peers.
 #[derive(Clone, Copy)]
 struct RayPrep {
     origin: [f32; 3],
     dir: [f32; 3],
     inv: [f32; 3],
     max_t: f32,
+    s4: PreparedRay,
 }
 
 impl RayPrep {
@@ -156,39 +160,8 @@ impl RayPrep {
             dir,
             inv: dir.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d }),
             max_t: ray.max_t,
+            s4: ray.prepared().expect("the scene's rays are valid"),
         }
-    }
-
-    /// S4 with `max_t` replaced by `limit`: the entry `t` on a hit. The
-    /// comparisons are explicit (no `min`/`max`) as S4 requires.
-    #[inline]
-    fn entry(&self, limit: f32, min: [f32; 3], max: [f32; 3]) -> Option<f32> {
-        let mut lo = 0.0f32;
-        let mut hi = limit;
-        for axis in 0..3 {
-            let o = self.origin[axis];
-            if self.dir[axis] == 0.0 {
-                if o < min[axis] || o > max[axis] {
-                    return None;
-                }
-                continue;
-            }
-            let inv = self.inv[axis];
-            let (near, far) = if inv > 0.0 {
-                (min[axis], max[axis])
-            } else {
-                (max[axis], min[axis])
-            };
-            let t0 = (near - o) * inv;
-            let t1 = (far - o) * inv;
-            if t0 > lo {
-                lo = t0;
-            }
-            if t1 < hi {
-                hi = t1;
-            }
-        }
-        if lo <= hi { Some(lo) } else { None }
     }
 }
 
@@ -603,7 +576,7 @@ fn parry_first_hit(bvh: &Bvh, boxes: &[Aabb], ray: &Ray) -> Option<(u32, f32)> {
     );
     bvh.cast_ray(&pray, prep.max_t, |leaf, best| {
         let b = &boxes[leaf as usize];
-        prep.entry(best, b.min.to_array(), b.max.to_array())
+        prep.s4.entry(b, best)
     })
 }
 
@@ -619,19 +592,35 @@ struct RstarRay<'a> {
 impl SelectionFunction<RstarBox> for RstarRay<'_> {
     fn should_unpack_parent(&self, envelope: &RstarEnvelope<[f32; 3]>) -> bool {
         self.ray
-            .entry(self.limit.get(), envelope.lower(), envelope.upper())
+            .s4
+            .entry(
+                &from_corners(envelope.lower(), envelope.upper()),
+                self.limit.get(),
+            )
             .is_some()
     }
 
     fn should_unpack_leaf(&self, leaf: &RstarBox) -> bool {
         let g = leaf.geom();
-        match self.ray.entry(self.limit.get(), g.lower(), g.upper()) {
+        match self
+            .ray
+            .s4
+            .entry(&from_corners(g.lower(), g.upper()), self.limit.get())
+        {
             Some(t) => {
                 self.last_t.set(t);
                 true
             }
             None => false,
         }
+    }
+}
+
+/// An rstar box as ours (no checks: it was built from one of ours).
+fn from_corners(lower: [f32; 3], upper: [f32; 3]) -> Aabb {
+    Aabb {
+        min: Vec3::from_array(lower),
+        max: Vec3::from_array(upper),
     }
 }
 

@@ -150,7 +150,9 @@ pub mod query;
 pub mod scene;
 pub mod tree;
 
-pub use geometry::{Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, Ray, SpatialError};
+pub use geometry::{
+    Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, PreparedRay, Ray, SpatialError,
+};
 pub use query::{
     CullMode, JoinMode, Neighbor, QueryWorkspace, RayHit, RayMode, RayResults, oracle,
 };

@@ -23,8 +23,14 @@ fn unit_at(x: f32) -> SpatialBounds {
     SpatialBounds(Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0)).unwrap())
 }
 
+/// The entities the main index holds, sorted, after checking its invariants.
 fn indexed(app: &App) -> Vec<Entity> {
-    let index = app.world().resource::<SpatialIndex>();
+    indexed_in::<SpatialBounds>(app)
+}
+
+/// The same for the index of layer `L`.
+fn indexed_in<L: Component>(app: &App) -> Vec<Entity> {
+    let index = app.world().resource::<SpatialIndex<L>>();
     index.validate().expect("index invariants");
     let mut all: Vec<Entity> = index.tree().iter().map(|(_, e, _)| e).collect();
     all.sort_unstable();
@@ -145,22 +151,19 @@ fn layers_hold_only_their_marked_entities() {
     let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
     let other = app.world_mut().spawn(unit_at(2.0)).id();
     app.update();
-    let layer = |app: &App| {
-        let index = app.world().resource::<SpatialIndex<Enemy>>();
-        index.validate().unwrap();
-        let mut all: Vec<Entity> = index.tree().iter().map(|(_, e, _)| e).collect();
-        all.sort_unstable();
-        all
-    };
-    assert_eq!(layer(&app), [enemy]);
+    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
     assert_eq!(indexed(&app), sorted([enemy, other]));
 
     app.world_mut().entity_mut(other).insert(Enemy);
     app.update();
-    assert_eq!(layer(&app), sorted([enemy, other]));
+    assert_eq!(indexed_in::<Enemy>(&app), sorted([enemy, other]));
 
     app.world_mut().entity_mut(enemy).remove::<Enemy>();
-    assert_eq!(layer(&app), [other], "leaving a layer is immediate");
+    assert_eq!(
+        indexed_in::<Enemy>(&app),
+        [other],
+        "leaving a layer is immediate"
+    );
     app.update();
     assert_eq!(indexed(&app), sorted([enemy, other]));
 

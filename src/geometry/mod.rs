@@ -12,4 +12,4 @@ pub use aabb::{Aabb, MAX_COORD};
 pub use error::SpatialError;
 pub use frustum::{Frustum, HalfSpace};
 pub use frustum_sat::FrustumSat;
-pub use ray::Ray;
+pub use ray::{PreparedRay, Ray};

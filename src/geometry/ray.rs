@@ -2,7 +2,8 @@
 
 use glam::Vec3;
 
-use super::SpatialError;
+use super::predicates::{RayTest, ray_box_entry};
+use super::{Aabb, SpatialError};
 
 /// A ray: the closed segment `{origin + t * dir : 0 <= t <= max_t}`.
 ///
@@ -70,5 +71,51 @@ impl Ray {
     #[inline]
     pub fn point_at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
+    }
+}
+
+/// A checked ray prepared for many box tests with the one ray-box predicate
+/// of SEMANTICS S4, the same function the tree and the oracle call. Useful
+/// for testing boxes outside the index (or for feeding another index).
+///
+/// ```
+/// use bevy_rtree::{Aabb, Ray};
+/// use glam::Vec3;
+///
+/// let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0)?.prepared()?;
+/// let wall = Aabb::new(Vec3::new(4.0, -1.0, -1.0), Vec3::new(5.0, 1.0, 1.0))?;
+/// assert_eq!(ray.entry(&wall, ray.max_t()), Some(4.0));
+/// assert_eq!(ray.entry(&wall, 3.0), None); // beyond the limit
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedRay {
+    test: RayTest,
+    max_t: f32,
+}
+
+impl Ray {
+    /// The ray checked, canonicalised and prepared for box tests.
+    pub fn prepared(&self) -> Result<PreparedRay, SpatialError> {
+        let ray = self.canonicalized()?;
+        Ok(PreparedRay {
+            test: RayTest::new(&ray),
+            max_t: ray.max_t,
+        })
+    }
+}
+
+impl PreparedRay {
+    /// The ray's own `max_t`.
+    pub fn max_t(&self) -> f32 {
+        self.max_t
+    }
+
+    /// Where the ray enters `aabb` (`0` if it starts inside or on it), if it
+    /// does so at `t <= limit`; pass [`max_t`](Self::max_t) or a smaller
+    /// limit such as the best hit so far.
+    #[inline]
+    pub fn entry(&self, aabb: &Aabb, limit: f32) -> Option<f32> {
+        ray_box_entry(&self.test, limit, aabb.min.to_array(), aabb.max.to_array())
     }
 }

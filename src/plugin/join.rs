@@ -169,21 +169,14 @@ pub(crate) fn run_join<A: Component, B: Component>(
     std::mem::swap(&mut join.pairs, &mut join.previous);
     join.pairs.clear();
     let self_join = TypeId::of::<A>() == TypeId::of::<B>();
+    // The tree's self join already reports each pair as (smaller, larger).
     let result = if self_join {
-        a.tree()
-            .self_join_into(
-                join.distance,
-                join.mode,
-                &mut join.workspace,
-                &mut join.pairs,
-            )
-            .map(|()| {
-                for pair in &mut join.pairs {
-                    if pair.1 < pair.0 {
-                        *pair = (pair.1, pair.0);
-                    }
-                }
-            })
+        a.tree().self_join_into(
+            join.distance,
+            join.mode,
+            &mut join.workspace,
+            &mut join.pairs,
+        )
     } else {
         a.tree().cross_join_into(
             b.tree(),
