@@ -153,6 +153,8 @@ pub mod tree;
 pub use geometry::{
     Aabb, Frustum, FrustumSat, HalfSpace, MAX_COORD, PreparedRay, Ray, SpatialError,
 };
+#[cfg(feature = "parallel")]
+pub use query::ParallelWorkspace;
 pub use query::{
     CullMode, JoinMode, Neighbor, QueryWorkspace, RayHit, RayMode, RayResults, oracle,
 };

@@ -1,6 +1,7 @@
 //! Frustum culling for cameras: every frame, each culling camera gets the
 //! sorted list of the entities it sees, all cameras in one traversal.
 
+use super::frame_queries::{self, FrameWorkspace};
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -10,7 +11,7 @@ use super::bounds::SpatialBounds;
 use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
 use crate::geometry::{Frustum, SpatialError};
-use crate::query::{CullMode, QueryWorkspace};
+use crate::query::CullMode;
 
 /// A view whose visible entities of layer `L` (all indexed entities by
 /// default) are listed in its [`VisibleEntityList`] every frame.
@@ -115,7 +116,7 @@ impl VisibleEntityList {
 /// Scratch reused by the culling system from frame to frame.
 #[derive(Default)]
 pub(crate) struct CullingScratch {
-    workspace: QueryWorkspace,
+    workspace: FrameWorkspace,
     frustums: Vec<Frustum>,
     lists: Vec<Vec<Entity>>,
     cameras: Vec<Entity>,
@@ -149,9 +150,8 @@ pub(crate) fn cull_cameras<L: Component>(
         }
         let out = &mut scratch.lists[..views];
         out.iter_mut().for_each(Vec::clear);
-        index
-            .tree()
-            .visible_into(&scratch.frustums, mode, &mut scratch.workspace, out);
+        let (tree, frustums) = (index.tree(), &scratch.frustums);
+        frame_queries::visible_into(tree, frustums, mode, &mut scratch.workspace, out);
         sink.add(|d| d.culling.record(views, &mut scratch.workspace));
         for (view, &camera) in scratch.cameras.iter().enumerate() {
             out[view].sort_unstable();

@@ -5,8 +5,8 @@ use std::sync::Mutex;
 
 use bevy_ecs::prelude::*;
 
+use super::frame_queries::{self, FrameWorkspace};
 use super::index::SyncCount;
-use crate::QueryWorkspace;
 
 /// Work done by one query family in one frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -23,8 +23,8 @@ pub struct QueryWork {
 
 impl QueryWork {
     /// Adds one run's statistics, taken from its workspace.
-    pub(crate) fn record(&mut self, queries: usize, workspace: &mut QueryWorkspace) {
-        let stats = workspace.take_stats();
+    pub(crate) fn record(&mut self, queries: usize, workspace: &mut FrameWorkspace) {
+        let stats = frame_queries::take_stats(workspace);
         self.runs += 1;
         self.queries += queries as u64;
         self.nodes_visited += stats.nodes_visited;

@@ -1,6 +1,7 @@
 //! Registered spatial joins: every frame, the pairs of two layers (or of one
 //! layer with itself) within a distance, and the pairs that started or ended.
 
+use super::frame_queries::{self, FrameWorkspace};
 use std::any::TypeId;
 use std::marker::PhantomData;
 
@@ -8,7 +9,7 @@ use bevy_ecs::prelude::*;
 
 use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
-use crate::query::{JoinMode, QueryWorkspace};
+use crate::query::JoinMode;
 
 /// The pairs of a join registered with
 /// [`add_spatial_join::<A, B>`](super::SpatialAppExt::add_spatial_join):
@@ -54,7 +55,7 @@ pub struct SpatialJoin<A: Component, B: Component> {
     /// What the pairs were computed from: both layers' generations, the
     /// distance and the mode.
     computed_from: Option<(u64, u64, u32, JoinMode)>,
-    workspace: QueryWorkspace,
+    workspace: FrameWorkspace,
     _layers: PhantomData<fn() -> (A, B)>,
 }
 
@@ -66,7 +67,7 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
             pairs: Vec::new(),
             previous: Vec::new(),
             computed_from: None,
-            workspace: QueryWorkspace::default(),
+            workspace: FrameWorkspace::default(),
             _layers: PhantomData,
         }
     }
@@ -171,14 +172,16 @@ pub(crate) fn run_join<A: Component, B: Component>(
     let self_join = TypeId::of::<A>() == TypeId::of::<B>();
     // The tree's self join already reports each pair as (smaller, larger).
     let result = if self_join {
-        a.tree().self_join_into(
+        frame_queries::self_join_into(
+            a.tree(),
             join.distance,
             join.mode,
             &mut join.workspace,
             &mut join.pairs,
         )
     } else {
-        a.tree().cross_join_into(
+        frame_queries::cross_join_into(
+            a.tree(),
             b.tree(),
             join.distance,
             join.mode,

@@ -60,6 +60,7 @@ mod bevy_camera;
 mod bounds;
 mod culling;
 mod diagnostics;
+mod frame_queries;
 mod index;
 mod join;
 mod oracle;

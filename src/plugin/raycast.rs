@@ -1,6 +1,7 @@
 //! Raycasts for caster entities: every frame, all casters of a layer are
 //! batched into one traversal per ray mode, and each gets its hits.
 
+use super::frame_queries::{self, FrameWorkspace};
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -9,7 +10,7 @@ use super::bounds::SpatialBounds;
 use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
 use crate::geometry::{Ray, SpatialError};
-use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
+use crate::query::{RayHit, RayMode, RayResults};
 
 /// A ray cast every frame against layer `L` (all indexed entities by
 /// default); the answer lands in the entity's [`RayCasterHits`].
@@ -100,7 +101,7 @@ impl RayCasterHits {
 /// Scratch reused by the ray system from frame to frame.
 #[derive(Default)]
 pub(crate) struct RayScratch {
-    workspace: QueryWorkspace,
+    workspace: FrameWorkspace,
     modes: Vec<RayMode>,
     rays: Vec<Ray>,
     casters: Vec<Entity>,
@@ -132,7 +133,8 @@ pub(crate) fn cast_rays<L: Component>(
                 scratch.casters.push(entity);
             }
         }
-        index.tree().cast_rays(
+        frame_queries::cast_rays(
+            index.tree(),
             &scratch.rays,
             mode,
             &mut scratch.workspace,

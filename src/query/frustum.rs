@@ -121,74 +121,103 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
+        ws.cull_stack.clear();
+        if let Some(start) = self.cull_start(views) {
+            ws.cull_stack.push(start);
+        }
+        self.cull_drain(views, ws, visit)
+    }
+
+    /// The root with every view's active planes, or `None` when no view can
+    /// see anything.
+    pub(crate) fn cull_start(&self, views: &[PreparedView]) -> Option<CullItem> {
         let mut start_mask = 0u64;
         for (v, view) in views.iter().enumerate() {
             start_mask |= (ALIVE | view.active_planes as u64) << (8 * v);
         }
-        if start_mask == 0 {
-            return ControlFlow::Continue(());
+        (start_mask != 0).then_some((self.root(), start_mask))
+    }
+
+    /// Runs the traversal until the workspace's stack is empty.
+    pub(crate) fn cull_drain(
+        &self,
+        views: &[PreparedView],
+        ws: &mut QueryWorkspace,
+        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        while let Some(item) = ws.cull_stack.pop() {
+            self.cull_step(views, item, ws, visit)?;
         }
-        ws.cull_stack.clear();
-        ws.cull_stack.push((self.root(), start_mask));
-        while let Some((index, mask)) = ws.cull_stack.pop() {
-            let node = self.node(index);
-            ws.stats.nodes_visited += 1;
-            let used = if W == 32 {
-                u32::MAX
-            } else {
-                (1u32 << node.len()) - 1
-            };
-            let mut lane_masks = [0u64; W];
-            let mut tested = false;
-            for (v, view) in views.iter().enumerate() {
-                let byte = (mask >> (8 * v)) & 0xFF;
-                if byte & ALIVE == 0 {
-                    continue;
-                }
-                let planes = (byte & 0x3F) as u8;
-                if planes == 0 {
-                    for (lane, m) in lane_masks.iter_mut().enumerate() {
-                        if used & (1 << lane) != 0 {
-                            *m |= ALIVE << (8 * v);
-                        }
-                    }
-                    continue;
-                }
-                tested = true;
-                let (alive, remaining) = view.test_lanes(node, planes);
-                let mut alive = alive & used;
-                while alive != 0 {
-                    let lane = alive.trailing_zeros() as usize;
-                    alive &= alive - 1;
-                    lane_masks[lane] |= (ALIVE | remaining[lane] as u64) << (8 * v);
-                }
+        ControlFlow::Continue(())
+    }
+
+    /// One node: its lanes against the planes each view still needs. A leaf
+    /// reports its visible entries; an internal node pushes its visible
+    /// children onto the stack (and reports nothing).
+    pub(crate) fn cull_step(
+        &self,
+        views: &[PreparedView],
+        (index, mask): CullItem,
+        ws: &mut QueryWorkspace,
+        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        let node = self.node(index);
+        ws.stats.nodes_visited += 1;
+        let used = if W == 32 {
+            u32::MAX
+        } else {
+            (1u32 << node.len()) - 1
+        };
+        let mut lane_masks = [0u64; W];
+        let mut tested = false;
+        for (v, view) in views.iter().enumerate() {
+            let byte = (mask >> (8 * v)) & 0xFF;
+            if byte & ALIVE == 0 {
+                continue;
             }
-            if node.is_leaf() {
-                if tested {
-                    ws.stats.entries_tested += node.len() as u64;
+            let planes = (byte & 0x3F) as u8;
+            if planes == 0 {
+                for (lane, m) in lane_masks.iter_mut().enumerate() {
+                    if used & (1 << lane) != 0 {
+                        *m |= ALIVE << (8 * v);
+                    }
                 }
-                for (lane, &lane_mask) in lane_masks.iter().enumerate().take(node.len()) {
-                    if lane_mask == 0 {
+                continue;
+            }
+            tested = true;
+            let (alive, remaining) = view.test_lanes(node, planes);
+            let mut alive = alive & used;
+            while alive != 0 {
+                let lane = alive.trailing_zeros() as usize;
+                alive &= alive - 1;
+                lane_masks[lane] |= (ALIVE | remaining[lane] as u64) << (8 * v);
+            }
+        }
+        if node.is_leaf() {
+            if tested {
+                ws.stats.entries_tested += node.len() as u64;
+            }
+            for (lane, &lane_mask) in lane_masks.iter().enumerate().take(node.len()) {
+                if lane_mask == 0 {
+                    continue;
+                }
+                let aabb = node.lane_box(lane);
+                let key = self.key_of(node.child[lane]);
+                for (v, view) in views.iter().enumerate() {
+                    let byte = (lane_mask >> (8 * v)) & 0xFF;
+                    if byte & ALIVE == 0 {
                         continue;
                     }
-                    let aabb = node.lane_box(lane);
-                    let key = self.key_of(node.child[lane]);
-                    for (v, view) in views.iter().enumerate() {
-                        let byte = (lane_mask >> (8 * v)) & 0xFF;
-                        if byte & ALIVE == 0 {
-                            continue;
-                        }
-                        if byte & 0x3F != 0 && !view.exact_rest(&aabb) {
-                            continue;
-                        }
-                        visit(v, key, &aabb)?;
+                    if byte & 0x3F != 0 && !view.exact_rest(&aabb) {
+                        continue;
                     }
+                    visit(v, key, &aabb)?;
                 }
-            } else {
-                for (lane, &lane_mask) in lane_masks.iter().enumerate() {
-                    if lane_mask != 0 {
-                        ws.cull_stack.push((node.child[lane], lane_mask));
-                    }
+            }
+        } else {
+            for (lane, &lane_mask) in lane_masks.iter().enumerate() {
+                if lane_mask != 0 {
+                    ws.cull_stack.push((node.child[lane], lane_mask));
                 }
             }
         }
@@ -196,16 +225,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 }
 
+/// A node to visit and, per view, its alive bit and the planes it still
+/// has to be tested against.
+pub(crate) type CullItem = (u32, u64);
+
 /// A frustum ready for lane tests: active planes and, in exact mode, the
 /// separating-axis precomputation.
-struct PreparedView {
+pub(crate) struct PreparedView {
     frustum: Frustum,
     active_planes: u8,
     sat: Option<FrustumSat>,
 }
 
 impl PreparedView {
-    fn new(frustum: &Frustum, mode: CullMode) -> PreparedView {
+    pub(crate) fn new(frustum: &Frustum, mode: CullMode) -> PreparedView {
         let mut active_planes = 0u8;
         for (i, plane) in frustum.planes().iter().enumerate() {
             if !plane.is_inactive() {

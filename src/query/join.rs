@@ -155,18 +155,35 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let exact = check_distance(distance)?;
         ws.join_stack.clear();
         ws.join_stack.push((self.root(), self.root()));
-        while let Some((a, b)) = ws.join_stack.pop() {
-            ws.stats.nodes_visited += 1;
-            let (na, nb) = (self.node(a), self.node(b));
-            let flow = join_lane_pairs(na, nb, a == b, distance, exact, mode, ws, |i, j| {
-                let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
-                visit(ka.min(kb), ka.max(kb))
-            });
-            if flow.is_break() {
-                return Ok(());
+        while let Some(pair) = ws.join_stack.pop() {
+            if self
+                .self_join_step(pair, distance, exact, mode, ws, &mut visit)
+                .is_break()
+            {
+                break;
             }
         }
         Ok(())
+    }
+
+    /// One pair of nodes of a self join: pushes the child pairs that can
+    /// still hold pairs within `distance`, or, for two leaves, reports the
+    /// entry pairs. `exact` is `distance` checked and widened to `f64`.
+    pub(crate) fn self_join_step(
+        &self,
+        (a, b): (u32, u32),
+        distance: f32,
+        exact: f64,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        ws.stats.nodes_visited += 1;
+        let (na, nb) = (self.node(a), self.node(b));
+        join_lane_pairs(na, nb, a == b, distance, exact, mode, ws, |i, j| {
+            let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
+            visit(ka.min(kb), ka.max(kb))
+        })
     }
 
     /// All pairs of [`RTree::visit_self_join`], sorted.
@@ -212,40 +229,57 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         ws.join_stack.clear();
         ws.join_stack.push((self.root(), other.root()));
-        while let Some((a, b)) = ws.join_stack.pop() {
-            ws.stats.nodes_visited += 1;
-            let (na, nb) = (self.node(a), other.node(b));
-            // Descend the taller side alone until the levels meet.
-            if na.level > nb.level {
-                let mut mask = reachable_lanes(na, &nb.lanes_union(), distance);
-                while mask != 0 {
-                    let i = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    ws.join_stack.push((na.child[i], b));
-                }
-                continue;
-            }
-            if nb.level > na.level {
-                let mut mask = reachable_lanes(nb, &na.lanes_union(), distance);
-                while mask != 0 {
-                    let j = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    ws.join_stack.push((a, nb.child[j]));
-                }
-                continue;
-            }
-            let flow = join_lane_pairs(na, nb, false, distance, exact, mode, ws, |i, j| {
-                let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
-                if ka == kb {
-                    return ControlFlow::Continue(());
-                }
-                visit(ka, kb)
-            });
-            if flow.is_break() {
-                return Ok(());
+        while let Some(pair) = ws.join_stack.pop() {
+            if self
+                .cross_join_step(other, pair, distance, exact, mode, ws, &mut visit)
+                .is_break()
+            {
+                break;
             }
         }
         Ok(())
+    }
+
+    /// One pair of nodes of a cross join: the taller side descends alone
+    /// until the levels meet; then as [`RTree::self_join_step`].
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn cross_join_step(
+        &self,
+        other: &RTree<K, W>,
+        (a, b): (u32, u32),
+        distance: f32,
+        exact: f64,
+        mode: JoinMode,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        ws.stats.nodes_visited += 1;
+        let (na, nb) = (self.node(a), other.node(b));
+        if na.level > nb.level {
+            let mut mask = reachable_lanes(na, &nb.lanes_union(), distance);
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                ws.join_stack.push((na.child[i], b));
+            }
+            return ControlFlow::Continue(());
+        }
+        if nb.level > na.level {
+            let mut mask = reachable_lanes(nb, &na.lanes_union(), distance);
+            while mask != 0 {
+                let j = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                ws.join_stack.push((a, nb.child[j]));
+            }
+            return ControlFlow::Continue(());
+        }
+        join_lane_pairs(na, nb, false, distance, exact, mode, ws, |i, j| {
+            let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
+            if ka == kb {
+                return ControlFlow::Continue(());
+            }
+            visit(ka, kb)
+        })
     }
 
     /// All pairs of [`RTree::visit_cross_join`], sorted.

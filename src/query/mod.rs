@@ -11,6 +11,8 @@ mod join;
 mod nearest;
 pub mod oracle;
 mod overlap;
+#[cfg(feature = "parallel")]
+mod parallel;
 mod ray;
 mod sphere;
 mod workspace;
@@ -18,5 +20,7 @@ mod workspace;
 pub use frustum::{CullMode, FRUSTUMS_PER_PASS};
 pub use join::JoinMode;
 pub use nearest::Neighbor;
+#[cfg(feature = "parallel")]
+pub use parallel::ParallelWorkspace;
 pub use ray::{RayHit, RayMode, RayResults};
 pub use workspace::QueryWorkspace;

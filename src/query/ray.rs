@@ -82,6 +82,24 @@ impl<K: Copy> RayResults<K> {
         Ok(self.hits(i)?.first().copied())
     }
 
+    /// Appends the slots of `other` after this batch's slots.
+    #[cfg(feature = "parallel")]
+    pub(crate) fn append(&mut self, other: &RayResults<K>) {
+        let offset = self.hits.len() as u32;
+        self.hits.extend_from_slice(&other.hits);
+        self.slots.extend(other.slots.iter().map(|slot| {
+            slot.clone()
+                .map(|(range, any)| (range.start + offset..range.end + offset, any))
+        }));
+    }
+
+    /// Empties the results, keeping their memory.
+    #[cfg(feature = "parallel")]
+    pub(crate) fn clear(&mut self) {
+        self.slots.clear();
+        self.hits.clear();
+    }
+
     /// Whether ray `i` hit anything (in every mode).
     pub fn any(&self, i: usize) -> Result<bool, SpatialError> {
         self.slots[i].as_ref().map(|(_, any)| *any).map_err(|e| *e)

@@ -1,0 +1,262 @@
+//! The parallel queries (feature `parallel`) against the same queries on one
+//! thread, on the standard town scene maintained through `WARM_FRAMES`
+//! frames of movement, as in `benches/queries.rs`.
+//!
+//! Run with `cargo bench --features parallel --bench parallel`. Each group
+//! has `single` (the ordinary call) and `parallel` (the `par_` call on
+//! bevy_tasks' `ComputeTaskPool`, one thread per core); the speed-up is
+//! single / parallel. Before any timing the two answers are compared on
+//! every timed input and must be identical.
+//!
+//! Groups (one iteration = one operation of one frame):
+//! - `parallel/rays_incoherent`, `parallel/rays_coherent`: 1,000 rays, first
+//!   hit, as in the queries bench;
+//! - `parallel/frustum`: the standard camera, conservative;
+//! - `parallel/frustum_4_views`: the camera and three more yaws in one call
+//!   (a frame's cameras and shadow views);
+//! - `parallel/cross_join`: enemies x barrels within 5 m, Euclidean;
+//! - `parallel/self_join`: all touching or overlapping pairs (d = 0).
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use bevy_rtree::scene::TownScene;
+use bevy_rtree::{
+    CullMode, Frustum, JoinMode, ParallelWorkspace, ProxyId, QueryWorkspace, RTree, Ray, RayMode,
+    RayResults,
+};
+use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+
+const SEED: u64 = 0x5EED_2024;
+const WARM_FRAMES: usize = 60;
+
+struct Trees {
+    all: RTree<u32>,
+    enemies: RTree<u32>,
+    barrels: RTree<u32>,
+}
+
+struct Inputs {
+    frustums: Vec<Frustum>,
+    incoherent: Vec<Ray>,
+    coherent: Vec<Ray>,
+}
+
+fn maintained(scene: &TownScene, range: std::ops::Range<usize>) -> (RTree<u32>, Vec<ProxyId>) {
+    let mut tree = RTree::new();
+    let boxes = scene.boxes();
+    let ids = tree
+        .insert_bulk(range.map(|i| (i as u32, boxes[i])))
+        .expect("scene boxes are valid");
+    (tree, ids)
+}
+
+fn setup() -> (Trees, Inputs) {
+    let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
+    let mut trees = [
+        (0..scene.len(), maintained(&scene, 0..scene.len())),
+        (TownScene::ENEMIES, maintained(&scene, TownScene::ENEMIES)),
+        (TownScene::BARRELS, maintained(&scene, TownScene::BARRELS)),
+    ];
+    for _ in 0..WARM_FRAMES {
+        scene.advance_frame();
+        for (range, (tree, ids)) in &mut trees {
+            for &i in scene.moved() {
+                let i = i as usize;
+                if range.contains(&i) {
+                    let id = ids[i - range.start];
+                    tree.update(id, scene.boxes()[i]).expect("valid box");
+                }
+            }
+            tree.optimize(usize::MAX);
+        }
+    }
+    let frustums = (0..4)
+        .map(|_| {
+            let f = scene.frustum();
+            scene.advance_frame();
+            f
+        })
+        .collect();
+    let coherent = scene.coherent_rays();
+    let incoherent = scene.incoherent_rays(1_000);
+    let [(_, (all, _)), (_, (enemies, _)), (_, (barrels, _))] = trees;
+    (
+        Trees {
+            all,
+            enemies,
+            barrels,
+        },
+        Inputs {
+            frustums,
+            incoherent,
+            coherent,
+        },
+    )
+}
+
+/// Slot by slot, the two batches answered the same.
+fn same_rays(a: &RayResults<u32>, b: &RayResults<u32>) -> bool {
+    a.len() == b.len() && (0..a.len()).all(|i| a.hits(i) == b.hits(i) && a.any(i) == b.any(i))
+}
+
+fn check(trees: &Trees, inputs: &Inputs, pws: &mut ParallelWorkspace<u32>) {
+    let mut ws = QueryWorkspace::default();
+    for rays in [&inputs.incoherent, &inputs.coherent] {
+        let (mut single, mut parallel) = (RayResults::default(), RayResults::default());
+        trees
+            .all
+            .cast_rays(rays, RayMode::First, &mut ws, &mut single);
+        trees
+            .all
+            .par_cast_rays(rays, RayMode::First, pws, &mut parallel);
+        assert!(same_rays(&single, &parallel), "rays differ");
+    }
+    for views in [&inputs.frustums[..1], &inputs.frustums[..]] {
+        let mut single = vec![Vec::new(); views.len()];
+        let mut parallel = vec![Vec::new(); views.len()];
+        let mode = CullMode::Conservative;
+        trees.all.visible_into(views, mode, &mut ws, &mut single);
+        trees.all.par_visible_into(views, mode, pws, &mut parallel);
+        assert_eq!(single, parallel, "culling differs");
+    }
+    let (d, mode) = (TownScene::JOIN_DISTANCE, JoinMode::Euclidean);
+    let (mut single, mut parallel) = (Vec::new(), Vec::new());
+    let (enemies, barrels) = (&trees.enemies, &trees.barrels);
+    enemies
+        .cross_join_into(barrels, d, mode, &mut ws, &mut single)
+        .expect("valid distance");
+    enemies
+        .par_cross_join_into(barrels, d, mode, pws, &mut parallel)
+        .expect("valid distance");
+    assert_eq!(single, parallel, "cross joins differ");
+    let (mut single, mut parallel) = (Vec::new(), Vec::new());
+    trees
+        .all
+        .self_join_into(0.0, mode, &mut ws, &mut single)
+        .expect("valid distance");
+    trees
+        .all
+        .par_self_join_into(0.0, mode, pws, &mut parallel)
+        .expect("valid distance");
+    assert_eq!(single, parallel, "self joins differ");
+    eprintln!(
+        "check: parallel answers equal single-threaded answers; last split {} tasks on {} pool threads",
+        pws.last_split(),
+        bevy_tasks::ComputeTaskPool::get().thread_num()
+    );
+}
+
+fn bench_rays(cr: &mut Criterion, trees: &Trees, name: &str, rays: &[Ray]) {
+    let mut group = cr.benchmark_group(name);
+    group.bench_function("single", |b| {
+        let (mut ws, mut out) = (QueryWorkspace::default(), RayResults::default());
+        b.iter(|| {
+            trees.all.cast_rays(rays, RayMode::First, &mut ws, &mut out);
+            black_box(&out);
+        })
+    });
+    group.bench_function("parallel", |b| {
+        let (mut pws, mut out) = (ParallelWorkspace::default(), RayResults::default());
+        b.iter(|| {
+            trees
+                .all
+                .par_cast_rays(rays, RayMode::First, &mut pws, &mut out);
+            black_box(&out);
+        })
+    });
+    group.finish();
+}
+
+fn bench_frustum(cr: &mut Criterion, trees: &Trees, name: &str, views: &[Frustum]) {
+    let mut group = cr.benchmark_group(name);
+    let mode = CullMode::Conservative;
+    group.bench_function("single", |b| {
+        let (mut ws, mut out) = (QueryWorkspace::default(), vec![Vec::new(); views.len()]);
+        b.iter(|| {
+            out.iter_mut().for_each(Vec::clear);
+            trees.all.visible_into(views, mode, &mut ws, &mut out);
+            out.len()
+        })
+    });
+    group.bench_function("parallel", |b| {
+        let (mut pws, mut out) = (ParallelWorkspace::default(), vec![Vec::new(); views.len()]);
+        b.iter(|| {
+            out.iter_mut().for_each(Vec::clear);
+            trees.all.par_visible_into(views, mode, &mut pws, &mut out);
+            out.len()
+        })
+    });
+    group.finish();
+}
+
+fn bench_joins(cr: &mut Criterion, trees: &Trees) {
+    let (d, mode) = (TownScene::JOIN_DISTANCE, JoinMode::Euclidean);
+    let (enemies, barrels) = (&trees.enemies, &trees.barrels);
+    let mut group = cr.benchmark_group("parallel/cross_join");
+    group.bench_function("single", |b| {
+        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
+        b.iter(|| {
+            out.clear();
+            let result = enemies.cross_join_into(barrels, d, mode, &mut ws, &mut out);
+            result.expect("valid distance");
+            out.len()
+        })
+    });
+    group.bench_function("parallel", |b| {
+        let (mut pws, mut out) = (ParallelWorkspace::default(), Vec::new());
+        b.iter(|| {
+            out.clear();
+            let result = enemies.par_cross_join_into(barrels, d, mode, &mut pws, &mut out);
+            result.expect("valid distance");
+            out.len()
+        })
+    });
+    group.finish();
+
+    let mut group = cr.benchmark_group("parallel/self_join");
+    group.sampling_mode(SamplingMode::Flat).sample_size(10);
+    group.bench_function("single", |b| {
+        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
+        b.iter(|| {
+            out.clear();
+            let result = trees.all.self_join_into(0.0, mode, &mut ws, &mut out);
+            result.expect("valid distance");
+            out.len()
+        })
+    });
+    group.bench_function("parallel", |b| {
+        let (mut pws, mut out) = (ParallelWorkspace::default(), Vec::new());
+        b.iter(|| {
+            out.clear();
+            let result = trees.all.par_self_join_into(0.0, mode, &mut pws, &mut out);
+            result.expect("valid distance");
+            out.len()
+        })
+    });
+    group.finish();
+}
+
+fn bench_all(cr: &mut Criterion) {
+    let (trees, inputs) = setup();
+    check(&trees, &inputs, &mut ParallelWorkspace::default());
+    bench_rays(cr, &trees, "parallel/rays_incoherent", &inputs.incoherent);
+    bench_rays(cr, &trees, "parallel/rays_coherent", &inputs.coherent);
+    bench_frustum(cr, &trees, "parallel/frustum", &inputs.frustums[..1]);
+    bench_frustum(cr, &trees, "parallel/frustum_4_views", &inputs.frustums);
+    bench_joins(cr, &trees);
+}
+
+fn config() -> Criterion {
+    Criterion::default()
+        .sample_size(20)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2))
+}
+
+criterion_group! {
+    name = benches;
+    config = config();
+    targets = bench_all
+}
+criterion_main!(benches);

@@ -1,0 +1,485 @@
+//! Parallel batched rays, culling and joins (feature `parallel`).
+//!
+//! The work runs on bevy_tasks' [`ComputeTaskPool`], the pool a Bevy app
+//! already runs its systems and `par_iter`s on: a second pool (rayon's, say)
+//! would start its own threads and compete with the schedule for the same
+//! cores. In an app with `TaskPoolPlugin` the pool has the app's thread
+//! count; elsewhere it is created on first use with one thread per core.
+//!
+//! Every answer equals the single-threaded call's, in the same order:
+//! - a batch of rays is cut into contiguous runs, one per task, and the
+//!   slots are concatenated in ray order;
+//! - culling and joins first run their depth-first traversal breadth first
+//!   for a few levels, only over nodes (or node pairs) that report nothing,
+//!   until there are enough pending items to share; each task then runs the
+//!   ordinary traversal from a contiguous run of them, and the answers are
+//!   concatenated in the order the single-threaded stack would have reached
+//!   them.
+//!
+//! Small work runs on the calling thread: splitting costs a few
+//! microseconds per task, more than a few dozen rays or a small tree take.
+
+use std::ops::{ControlFlow, Range};
+
+use bevy_tasks::{ComputeTaskPool, TaskPool};
+
+use super::frustum::{CullItem, PreparedView};
+use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
+use crate::geometry::predicates::check_distance;
+use crate::geometry::{Frustum, Ray, SpatialError};
+use crate::tree::{QueryStats, RTree};
+
+/// Pending items per task to aim for before splitting a traversal. Items
+/// differ in cost by orders of magnitude (a subtree in view or not), and
+/// neighbouring items alike, so each task takes every `count`-th of many.
+const ITEMS_PER_TASK: usize = 16;
+
+/// Scratch memory of the parallel queries: one [`QueryWorkspace`] and answer
+/// buffers per task, reused from call to call, and the thresholds below
+/// which a query runs on the calling thread.
+///
+/// ```
+/// use bevy_rtree::{Aabb, ParallelWorkspace, RTree, Ray, RayMode, RayResults};
+/// use glam::Vec3;
+///
+/// let mut tree = RTree::new();
+/// for i in 0..100u32 {
+///     let x = i as f32 * 2.0;
+///     tree.insert(i, Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0))?)?;
+/// }
+/// let rays: Vec<Ray> = (0..100)
+///     .map(|i| Ray::new(Vec3::new(i as f32 * 2.0 + 0.5, 0.5, 10.0), Vec3::NEG_Z, 20.0))
+///     .collect::<Result<_, _>>()?;
+/// // Split even this small batch, to show it: by default it would run on one thread.
+/// let mut pws = ParallelWorkspace::default().with_min_rays_per_task(1);
+/// let mut out = RayResults::default();
+/// tree.par_cast_rays(&rays, RayMode::First, &mut pws, &mut out);
+/// assert_eq!(out.first(42)?.map(|hit| (hit.key, hit.t)), Some((42, 9.0)));
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Debug)]
+pub struct ParallelWorkspace<K> {
+    tasks: Vec<TaskScratch<K>>,
+    cull_frontier: [Vec<CullItem>; 2],
+    join_frontier: [Vec<(u32, u32)>; 2],
+    min_rays_per_task: usize,
+    min_entries_to_split: usize,
+    last_split: usize,
+}
+
+/// What one task owns while it runs.
+#[derive(Debug)]
+struct TaskScratch<K> {
+    ws: QueryWorkspace,
+    rays: RayResults<K>,
+    keys: Vec<Vec<K>>,
+    pairs: Vec<(K, K)>,
+    /// Per item taken (per view, for culling): the answer count after it.
+    ends: Vec<usize>,
+}
+
+impl<K> Default for TaskScratch<K> {
+    fn default() -> Self {
+        TaskScratch {
+            ws: QueryWorkspace::default(),
+            rays: RayResults::default(),
+            keys: Vec::new(),
+            pairs: Vec::new(),
+            ends: Vec::new(),
+        }
+    }
+}
+
+// Not derived: an empty workspace needs no default key.
+impl<K> Default for ParallelWorkspace<K> {
+    fn default() -> Self {
+        ParallelWorkspace {
+            tasks: Vec::new(),
+            cull_frontier: [Vec::new(), Vec::new()],
+            join_frontier: [Vec::new(), Vec::new()],
+            min_rays_per_task: 64,
+            min_entries_to_split: 4096,
+            last_split: 0,
+        }
+    }
+}
+
+impl<K> ParallelWorkspace<K> {
+    /// A batch is split only into runs of at least this many rays (default
+    /// 64; at least 1).
+    pub fn with_min_rays_per_task(mut self, rays: usize) -> Self {
+        self.min_rays_per_task = rays.max(1);
+        self
+    }
+
+    /// Culling and joins are split only over trees of at least this many
+    /// entries (default 4096; a join counts the larger tree).
+    pub fn with_min_entries_to_split(mut self, entries: usize) -> Self {
+        self.min_entries_to_split = entries;
+        self
+    }
+
+    /// How many tasks the last query ran as (`1`: on the calling thread).
+    pub fn last_split(&self) -> usize {
+        self.last_split
+    }
+
+    /// The counters of every task, summed.
+    pub fn stats(&self) -> QueryStats {
+        self.tasks.iter().fold(QueryStats::default(), |sum, task| {
+            let s = task.ws.stats();
+            QueryStats {
+                nodes_visited: sum.nodes_visited + s.nodes_visited,
+                entries_tested: sum.entries_tested + s.entries_tested,
+            }
+        })
+    }
+
+    /// Returns the summed counters and resets them to zero.
+    pub fn take_stats(&mut self) -> QueryStats {
+        let stats = self.stats();
+        for task in &mut self.tasks {
+            task.ws.take_stats();
+        }
+        stats
+    }
+
+    /// The scratch of `count` tasks (at least one), noted as the last split.
+    fn tasks(&mut self, count: usize) -> &mut [TaskScratch<K>] {
+        let count = count.max(1);
+        self.last_split = count;
+        if self.tasks.len() < count {
+            self.tasks.resize_with(count, TaskScratch::default);
+        }
+        &mut self.tasks[..count]
+    }
+}
+
+/// The pool the queries run on.
+fn pool() -> &'static TaskPool {
+    ComputeTaskPool::get_or_init(TaskPool::default)
+}
+
+/// How many tasks to split `units` of work into, at least `min_per_task`
+/// each; `1` means "run on the calling thread".
+fn task_count(units: usize, min_per_task: usize) -> usize {
+    let threads = pool().thread_num();
+    if threads < 2 {
+        return 1;
+    }
+    // One task per thread: measured on 2 threads, more and smaller batches
+    // of rays cost more per ray than the better balance saves.
+    threads.min(units / min_per_task.max(1)).max(1)
+}
+
+/// Runs `body(run, task)` on `tasks.len()` contiguous runs of `items`, one
+/// task each, on the pool, and returns when all are done.
+fn run_split<T: Sync, S: Send>(items: &[T], tasks: &mut [S], body: impl Fn(&[T], &mut S) + Sync) {
+    let count = tasks.len();
+    let body = &body;
+    let run = |i: usize| &items[i * items.len() / count..(i + 1) * items.len() / count];
+    let (first, rest) = tasks.split_first_mut().expect("at least one task");
+    pool().scope(|scope| {
+        for (i, task) in rest.iter_mut().enumerate() {
+            let run = run(i + 1);
+            scope.spawn(async move { body(run, task) });
+        }
+        // The calling thread takes the first run itself rather than wait.
+        body(run(0), first);
+    });
+}
+
+/// Runs `body(item, task)` for every item, task `t` taking items `t`,
+/// `t + count`, `t + 2·count`, ... in that order, on the pool.
+fn run_interleaved<T: Sync, S: Send>(
+    items: &[T],
+    tasks: &mut [S],
+    body: impl Fn(&T, &mut S) + Sync,
+) {
+    let count = tasks.len();
+    let body = &body;
+    let take = move |t: usize, task: &mut S| {
+        for item in items.iter().skip(t).step_by(count) {
+            body(item, task);
+        }
+    };
+    let (first, rest) = tasks.split_first_mut().expect("at least one task");
+    pool().scope(|scope| {
+        for (t, task) in rest.iter_mut().enumerate() {
+            scope.spawn(async move { take(t + 1, task) });
+        }
+        // The calling thread takes the first share itself rather than wait.
+        take(0, first);
+    });
+}
+
+/// Where answer list `list` of item `index` sits in its task's list, when
+/// each task records after each of its interleaved items the length of each
+/// of its `lists` answer lists (`ends[k * lists + list]` for its `k`-th item).
+fn segment(ends: &[usize], index: usize, count: usize, lists: usize, list: usize) -> Range<usize> {
+    let k = index / count;
+    let start = if k == 0 {
+        0
+    } else {
+        ends[(k - 1) * lists + list]
+    };
+    start..ends[k * lists + list]
+}
+
+/// Replaces the pending items of a depth-first traversal by the items they
+/// push, one level at a time, until there are at least `target` or the next
+/// step could report an answer. With `step` pushing in the traversal's own
+/// order, running the stack from the new frontier reaches every answer in
+/// the same order as from the old one: each item's pushes take its place.
+fn expand_frontier<T: Copy>(
+    frontier: &mut Vec<T>,
+    next: &mut Vec<T>,
+    target: usize,
+    may_report: impl Fn(T) -> bool,
+    mut step: impl FnMut(T, &mut Vec<T>),
+) {
+    while !frontier.is_empty()
+        && frontier.len() < target
+        && !frontier.iter().any(|&item| may_report(item))
+    {
+        next.clear();
+        for &item in frontier.iter() {
+            step(item, next);
+        }
+        std::mem::swap(frontier, next);
+    }
+}
+
+/// A visitor for steps that must not report (debug builds check it).
+fn reports_nothing<T>(_: T) -> ControlFlow<()> {
+    debug_assert!(false, "a frontier step reported an answer");
+    ControlFlow::Continue(())
+}
+
+impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
+    /// [`RTree::cast_rays`] on the task pool: the batch is cut into runs of
+    /// consecutive rays (keep coherent rays next to each other), each cast
+    /// as its own batch. `out` is identical to the single-threaded call's.
+    pub fn par_cast_rays(
+        &self,
+        rays: &[Ray],
+        mode: RayMode,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut RayResults<K>,
+    ) {
+        let count = task_count(rays.len(), pws.min_rays_per_task);
+        let tasks = pws.tasks(count);
+        if count == 1 {
+            self.cast_rays(rays, mode, &mut tasks[0].ws, out);
+            return;
+        }
+        run_split(rays, tasks, |run, task| {
+            self.cast_rays(run, mode, &mut task.ws, &mut task.rays);
+        });
+        out.clear();
+        for task in tasks.iter() {
+            out.append(&task.rays);
+        }
+    }
+
+    /// [`RTree::visible_into`] on the task pool. Each list of `out` gets the
+    /// same keys in the same order as from the single-threaded call.
+    pub fn par_visible_into(
+        &self,
+        frustums: &[Frustum],
+        mode: CullMode,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut [Vec<K>],
+    ) {
+        assert_eq!(frustums.len(), out.len(), "one output list per frustum");
+        let count = if self.len() < pws.min_entries_to_split {
+            1
+        } else {
+            task_count(usize::MAX, 1)
+        };
+        if count == 1 {
+            let ws = &mut pws.tasks(1)[0].ws;
+            self.visible_into(frustums, mode, ws, out);
+            return;
+        }
+        for (chunk, views) in frustums.chunks(FRUSTUMS_PER_PASS).enumerate() {
+            let out = &mut out[chunk * FRUSTUMS_PER_PASS..][..views.len()];
+            let views: Vec<PreparedView> =
+                views.iter().map(|f| PreparedView::new(f, mode)).collect();
+            self.par_cull_pass(&views, count, pws, out);
+        }
+    }
+
+    fn par_cull_pass(
+        &self,
+        views: &[PreparedView],
+        count: usize,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut [Vec<K>],
+    ) {
+        pws.tasks(count);
+        let [frontier, next] = &mut pws.cull_frontier;
+        frontier.clear();
+        frontier.extend(self.cull_start(views));
+        let ws = &mut pws.tasks[0].ws;
+        expand_frontier(
+            frontier,
+            next,
+            count * ITEMS_PER_TASK,
+            |(node, _)| self.node(node).is_leaf(),
+            |item, pushed| {
+                ws.cull_stack.clear();
+                let _ = self.cull_step(views, item, ws, &mut |_, _, _| reports_nothing(()));
+                pushed.extend_from_slice(&ws.cull_stack);
+            },
+        );
+        let frontier = &pws.cull_frontier[0];
+        let count = count.min(frontier.len()).max(1);
+        pws.last_split = count;
+        let tasks = &mut pws.tasks[..count];
+        for task in tasks.iter_mut() {
+            task.keys.resize_with(views.len(), Vec::new);
+            task.keys.iter_mut().for_each(Vec::clear);
+            task.ends.clear();
+        }
+        run_interleaved(frontier, tasks, |&item, task| {
+            task.ws.cull_stack.clear();
+            task.ws.cull_stack.push(item);
+            let keys = &mut task.keys;
+            let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
+                keys[view].push(key);
+                ControlFlow::Continue(())
+            });
+            task.ends.extend(keys.iter().map(Vec::len));
+        });
+        // A stack runs its last items first: the last item's answers come first.
+        for index in (0..frontier.len()).rev() {
+            let task = &tasks[index % count];
+            for (view, list) in out.iter_mut().enumerate() {
+                let range = segment(&task.ends, index, count, views.len(), view);
+                list.extend_from_slice(&task.keys[view][range]);
+            }
+        }
+    }
+
+    /// [`RTree::self_join_into`] on the task pool: appends the same pairs in
+    /// the same order as the single-threaded call.
+    pub fn par_self_join_into(
+        &self,
+        distance: f32,
+        mode: JoinMode,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut Vec<(K, K)>,
+    ) -> Result<(), SpatialError> {
+        let exact = check_distance(distance)?;
+        if self.len() < pws.min_entries_to_split || task_count(usize::MAX, 1) == 1 {
+            let ws = &mut pws.tasks(1)[0].ws;
+            return self.self_join_into(distance, mode, ws, out);
+        }
+        let count = task_count(usize::MAX, 1);
+        let root = self.root();
+        self.par_join(
+            (root, root),
+            count,
+            pws,
+            out,
+            |(a, _)| self.node(a).is_leaf(),
+            |pair, ws, mut visit| self.self_join_step(pair, distance, exact, mode, ws, &mut visit),
+        );
+        Ok(())
+    }
+
+    /// [`RTree::cross_join_into`] on the task pool: appends the same pairs
+    /// in the same order as the single-threaded call.
+    pub fn par_cross_join_into(
+        &self,
+        other: &RTree<K, W>,
+        distance: f32,
+        mode: JoinMode,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut Vec<(K, K)>,
+    ) -> Result<(), SpatialError> {
+        let exact = check_distance(distance)?;
+        let entries = self.len().max(other.len());
+        if self.is_empty()
+            || other.is_empty()
+            || entries < pws.min_entries_to_split
+            || task_count(usize::MAX, 1) == 1
+        {
+            let ws = &mut pws.tasks(1)[0].ws;
+            return self.cross_join_into(other, distance, mode, ws, out);
+        }
+        let count = task_count(usize::MAX, 1);
+        self.par_join(
+            (self.root(), other.root()),
+            count,
+            pws,
+            out,
+            |(a, b)| self.node(a).is_leaf() && other.node(b).is_leaf(),
+            |pair, ws, mut visit| {
+                self.cross_join_step(other, pair, distance, exact, mode, ws, &mut visit)
+            },
+        );
+        Ok(())
+    }
+
+    /// The split shared by both joins, from the root pair `start`.
+    fn par_join<Step>(
+        &self,
+        start: (u32, u32),
+        count: usize,
+        pws: &mut ParallelWorkspace<K>,
+        out: &mut Vec<(K, K)>,
+        may_report: impl Fn((u32, u32)) -> bool,
+        step: Step,
+    ) where
+        Step: Fn(
+                (u32, u32),
+                &mut QueryWorkspace,
+                &mut dyn FnMut(K, K) -> ControlFlow<()>,
+            ) -> ControlFlow<()>
+            + Sync,
+    {
+        pws.tasks(count);
+        let ws = &mut pws.tasks[0].ws;
+        let [frontier, next] = &mut pws.join_frontier;
+        frontier.clear();
+        frontier.push(start);
+        expand_frontier(
+            frontier,
+            next,
+            count * ITEMS_PER_TASK,
+            may_report,
+            |pair, pushed| {
+                ws.join_stack.clear();
+                let _ = step(pair, ws, &mut |_, _| reports_nothing(()));
+                pushed.extend_from_slice(&ws.join_stack);
+            },
+        );
+        let count = count.min(frontier.len()).max(1);
+        let tasks = &mut pws.tasks[..count];
+        pws.last_split = count;
+        let frontier = &pws.join_frontier[0];
+        for task in tasks.iter_mut() {
+            task.pairs.clear();
+            task.ends.clear();
+        }
+        run_interleaved(frontier, tasks, |&item, task| {
+            task.ws.join_stack.clear();
+            task.ws.join_stack.push(item);
+            let pairs = &mut task.pairs;
+            while let Some(pair) = task.ws.join_stack.pop() {
+                let _ = step(pair, &mut task.ws, &mut |a, b| {
+                    pairs.push((a, b));
+                    ControlFlow::Continue(())
+                });
+            }
+            task.ends.push(pairs.len());
+        });
+        // A stack runs its last items first: the last item's pairs come first.
+        for index in (0..frontier.len()).rev() {
+            let task = &tasks[index % count];
+            out.extend_from_slice(&task.pairs[segment(&task.ends, index, count, 1, 0)]);
+        }
+    }
+}
