@@ -115,12 +115,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// One traversal for up to eight views.
-    fn cull_pass(
+    fn cull_pass<V>(
         &self,
         views: &[PreparedView],
         ws: &mut QueryWorkspace,
-        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    ) -> ControlFlow<()> {
+        visit: &mut V,
+    ) -> ControlFlow<()>
+    where
+        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
         ws.cull_stack.clear();
         if let Some(start) = self.cull_start(views) {
             ws.cull_stack.push(start);
@@ -139,12 +142,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Runs the traversal until the workspace's stack is empty.
-    pub(crate) fn cull_drain(
+    pub(crate) fn cull_drain<V>(
         &self,
         views: &[PreparedView],
         ws: &mut QueryWorkspace,
-        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    ) -> ControlFlow<()> {
+        visit: &mut V,
+    ) -> ControlFlow<()>
+    where
+        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
         while let Some(item) = ws.cull_stack.pop() {
             self.cull_step(views, item, ws, visit)?;
         }
@@ -154,13 +160,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// One node: its lanes against the planes each view still needs. A leaf
     /// reports its visible entries; an internal node pushes its visible
     /// children onto the stack (and reports nothing).
-    pub(crate) fn cull_step(
+    pub(crate) fn cull_step<V>(
         &self,
         views: &[PreparedView],
         (index, mask): CullItem,
         ws: &mut QueryWorkspace,
-        visit: &mut dyn FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    ) -> ControlFlow<()> {
+        visit: &mut V,
+    ) -> ControlFlow<()>
+    where
+        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
+        if fully_inside(mask) {
+            return self.emit_subtree(index, mask, ws, visit);
+        }
         let node = self.node(index);
         ws.stats.nodes_visited += 1;
         let used = if W == 32 {
@@ -223,6 +235,69 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         ControlFlow::Continue(())
     }
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Reports every entry below `index` to every view alive in `mask`, with
+    /// no further test: the subtree is inside all their planes. Same order
+    /// as the tested traversal (children pushed in lane order).
+    fn emit_subtree<V>(
+        &self,
+        index: u32,
+        mask: u64,
+        ws: &mut QueryWorkspace,
+        visit: &mut V,
+    ) -> ControlFlow<()>
+    where
+        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
+        let alive = alive_views(mask);
+        let mut stack = std::mem::take(&mut ws.stack);
+        stack.clear();
+        stack.push(index);
+        let mut flow = ControlFlow::Continue(());
+        'nodes: while let Some(index) = stack.pop() {
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            if !node.is_leaf() {
+                stack.extend_from_slice(&node.child[..node.len()]);
+                continue;
+            }
+            for lane in 0..node.len() {
+                let (key, aabb) = (self.key_of(node.child[lane]), node.lane_box(lane));
+                let mut views = alive;
+                while views != 0 {
+                    let view = views.trailing_zeros() as usize;
+                    views &= views - 1;
+                    flow = visit(view, key, &aabb);
+                    if flow.is_break() {
+                        break 'nodes;
+                    }
+                }
+            }
+        }
+        ws.stack = stack;
+        flow
+    }
+}
+
+/// The views alive in a mask, one bit per view.
+#[inline]
+fn alive_views(mask: u64) -> u32 {
+    let mut views = 0u32;
+    for view in 0..FRUSTUMS_PER_PASS {
+        views |= (((mask >> (8 * view)) & ALIVE != 0) as u32) << view;
+    }
+    views
+}
+
+/// Whether every view alive in `mask` has no plane left to test: the node
+/// and all below it are visible to each of them.
+#[inline]
+pub(crate) fn fully_inside(mask: u64) -> bool {
+    // Each byte is ALIVE | planes; no byte may hold a plane bit.
+    const PLANES: u64 = 0x3F3F_3F3F_3F3F_3F3F;
+    mask != 0 && mask & PLANES == 0
 }
 
 /// A node to visit and, per view, its alive bit and the planes it still

@@ -23,7 +23,7 @@ use std::ops::{ControlFlow, Range};
 
 use bevy_tasks::{ComputeTaskPool, TaskPool};
 
-use super::frustum::{CullItem, PreparedView};
+use super::frustum::{CullItem, PreparedView, fully_inside};
 use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
 use crate::geometry::predicates::check_distance;
 use crate::geometry::{Frustum, Ray, SpatialError};
@@ -326,7 +326,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             frontier,
             next,
             count * ITEMS_PER_TASK,
-            |(node, _)| self.node(node).is_leaf(),
+            // A subtree inside every plane is reported at once.
+            |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
             |item, pushed| {
                 ws.cull_stack.clear();
                 let _ = self.cull_step(views, item, ws, &mut |_, _, _| reports_nothing(()));
