@@ -118,10 +118,14 @@ pub(crate) struct RayBatchScratch {
     /// Every `(ray, t, proxy)` hit in all-hits mode.
     all: Vec<(u32, f32, u32)>,
     found: Vec<bool>,
-    /// Indices of live rays; reordered in place by the traversal.
+    /// Indices of the valid rays: the batch the root is visited with.
     active: Vec<u32>,
-    /// Lane masks per depth and ray: `masks[depth * rays + ray]`.
+    /// Per depth: the lane mask of each ray the node at that depth was
+    /// visited with (`masks[depth * rays + i]` for its `i`-th ray).
     masks: Vec<u32>,
+    /// Per depth: the rays of each child of the node at that depth, one run
+    /// per lane, the batches the children are visited with.
+    buckets: Vec<Vec<u32>>,
 }
 
 /// Lane mask and entry `t` per lane of one ray against one node: the S4
@@ -374,10 +378,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let height = self.height();
         s.masks.clear();
         s.masks.resize(height * n, 0);
-        let mut active = std::mem::take(&mut s.active);
+        if s.buckets.len() < height {
+            s.buckets.resize_with(height, Vec::new);
+        }
+        let active = std::mem::take(&mut s.active);
         // A batch of only invalid rays has nothing to traverse with.
         if !active.is_empty() {
-            self.batch_node(self.root(), &mut active, 0, mode, ws);
+            self.batch_node(self.root(), &active, 0, mode, ws);
         }
         ws.rays.active = active;
 
@@ -431,13 +438,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
-    /// One node of the batched traversal: test every live ray against the
-    /// lanes, then, child by child (near to far for the first ray), move the
-    /// rays that hit the child to the front and recurse with their count.
+    /// One node of the batched traversal: test every ray of the batch
+    /// against the lanes, sort the rays into one run per child they hit
+    /// (a counting sort: the work is the number of hits, not rays x lanes),
+    /// then visit the children near to far (for the first ray) with their
+    /// runs. A ray that is done (any hit found) hits no lane.
     fn batch_node(
         &self,
         index: u32,
-        active: &mut [u32],
+        active: &[u32],
         depth: usize,
         mode: RayMode,
         ws: &mut QueryWorkspace,
@@ -481,30 +490,47 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             return;
         }
-        let row = depth * n;
-        for &r in active.iter() {
+        let masks = &mut s.masks[depth * n..][..active.len()];
+        let mut counts = [0u32; W];
+        for (mask, &r) in masks.iter_mut().zip(active) {
             let r = r as usize;
-            let (mask, _) = ray_lanes(&s.tests[r], s.limits[r], node);
-            s.masks[row + r] = mask;
+            *mask = ray_lanes(&s.tests[r], s.limits[r], node).0;
+            let mut bits = *mask;
+            while bits != 0 {
+                counts[bits.trailing_zeros() as usize] += 1;
+                bits &= bits - 1;
+            }
+        }
+        let mut starts = [0u32; W];
+        let mut total = 0u32;
+        for lane in 0..W {
+            starts[lane] = total;
+            total += counts[lane];
+        }
+        if total == 0 {
+            return;
+        }
+        let mut bucket = std::mem::take(&mut s.buckets[depth]);
+        bucket.clear();
+        bucket.resize(total as usize, 0);
+        let mut next = starts;
+        for (&mask, &r) in masks.iter().zip(active) {
+            let mut bits = mask;
+            while bits != 0 {
+                let lane = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                bucket[next[lane] as usize] = r;
+                next[lane] += 1;
+            }
         }
         let dir = s.tests[active[0] as usize].dir;
-        let order: smallvec::SmallVec<[usize; 16]> = near_to_far(node, dir).collect();
-        for lane in order {
-            let bit = 1u32 << lane;
-            let s = &mut ws.rays;
-            // Move-to-front: rays hitting this child (and still live) first.
-            let mut count = 0;
-            for i in 0..active.len() {
-                let r = active[i] as usize;
-                if s.masks[row + r] & bit != 0 && s.limits[r] >= 0.0 {
-                    active.swap(i, count);
-                    count += 1;
-                }
-            }
-            if count > 0 {
-                self.batch_node(node.child[lane], &mut active[..count], depth + 1, mode, ws);
+        for lane in near_to_far(node, dir) {
+            let run = &bucket[starts[lane] as usize..next[lane] as usize];
+            if !run.is_empty() {
+                self.batch_node(node.child[lane], run, depth + 1, mode, ws);
             }
         }
+        ws.rays.buckets[depth] = bucket;
     }
 }
 
