@@ -11,15 +11,21 @@
 //!   slots are concatenated in ray order;
 //! - culling and joins first run their depth-first traversal breadth first
 //!   for a few levels, only over nodes (or node pairs) that report nothing,
-//!   until there are enough pending items to share; each task then runs the
-//!   ordinary traversal from a contiguous run of them, and the answers are
-//!   concatenated in the order the single-threaded stack would have reached
-//!   them.
+//!   until there are enough pending items to share; the tasks then claim
+//!   items one at a time and run the ordinary traversal from each, and the
+//!   answers are concatenated in the order the single-threaded stack would
+//!   have reached them.
+//!
+//! Tasks are as many as the pool has threads, and the calling thread works
+//! as one of them: on the 2-core machine the benches ran on, a pool thread
+//! took 70 to 100 µs to start on a task, so more, smaller tasks (or smaller
+//! batches of rays, which cost more per ray) lost more than they balanced.
 //!
 //! Small work runs on the calling thread: splitting costs a few
 //! microseconds per task, more than a few dozen rays or a small tree take.
 
 use std::ops::{ControlFlow, Range};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use bevy_tasks::{ComputeTaskPool, TaskPool};
 
@@ -30,8 +36,8 @@ use crate::geometry::{Frustum, Ray, SpatialError};
 use crate::tree::{QueryStats, RTree};
 
 /// Pending items per task to aim for before splitting a traversal. Items
-/// differ in cost by orders of magnitude (a subtree in view or not), and
-/// neighbouring items alike, so each task takes every `count`-th of many.
+/// differ in cost by orders of magnitude (a subtree in view or not), so
+/// tasks claim them one by one from many.
 const ITEMS_PER_TASK: usize = 16;
 
 /// Scratch memory of the parallel queries: one [`QueryWorkspace`] and answer
@@ -62,6 +68,8 @@ pub struct ParallelWorkspace<K> {
     tasks: Vec<TaskScratch<K>>,
     cull_frontier: [Vec<CullItem>; 2],
     join_frontier: [Vec<(u32, u32)>; 2],
+    /// Per frontier item: the task that took it and its rank there.
+    owner: Vec<(u32, u32)>,
     min_rays_per_task: usize,
     min_entries_to_split: usize,
     last_split: usize,
@@ -76,6 +84,8 @@ struct TaskScratch<K> {
     pairs: Vec<(K, K)>,
     /// Per item taken (per view, for culling): the answer count after it.
     ends: Vec<usize>,
+    /// The indices of the items taken, in order.
+    taken: Vec<u32>,
 }
 
 impl<K> Default for TaskScratch<K> {
@@ -86,6 +96,7 @@ impl<K> Default for TaskScratch<K> {
             keys: Vec::new(),
             pairs: Vec::new(),
             ends: Vec::new(),
+            taken: Vec::new(),
         }
     }
 }
@@ -97,6 +108,7 @@ impl<K> Default for ParallelWorkspace<K> {
             tasks: Vec::new(),
             cull_frontier: [Vec::new(), Vec::new()],
             join_frontier: [Vec::new(), Vec::new()],
+            owner: Vec::new(),
             min_rays_per_task: 64,
             min_entries_to_split: 4096,
             last_split: 0,
@@ -189,41 +201,59 @@ fn run_split<T: Sync, S: Send>(items: &[T], tasks: &mut [S], body: impl Fn(&[T],
     });
 }
 
-/// Runs `body(item, task)` for every item, task `t` taking items `t`,
-/// `t + count`, `t + 2·count`, ... in that order, on the pool.
-fn run_interleaved<T: Sync, S: Send>(
+/// Runs `body(index, item, task)` for every item on the pool: each task
+/// claims the next unclaimed item until none is left, so a thread that
+/// starts late or draws cheap items simply takes more of them. Each task
+/// notes the indices it took, in order, in `taken(task)`.
+fn run_claimed<T: Sync, S: Send>(
     items: &[T],
     tasks: &mut [S],
+    taken: impl Fn(&mut S) -> &mut Vec<u32> + Sync,
     body: impl Fn(&T, &mut S) + Sync,
 ) {
-    let count = tasks.len();
-    let body = &body;
-    let take = move |t: usize, task: &mut S| {
-        for item in items.iter().skip(t).step_by(count) {
+    let next = AtomicUsize::new(0);
+    let (next, body, taken) = (&next, &body, &taken);
+    let take = move |task: &mut S| {
+        taken(task).clear();
+        loop {
+            let index = next.fetch_add(1, Ordering::Relaxed);
+            let Some(item) = items.get(index) else { break };
+            taken(task).push(index as u32);
             body(item, task);
         }
     };
     let (first, rest) = tasks.split_first_mut().expect("at least one task");
     pool().scope(|scope| {
-        for (t, task) in rest.iter_mut().enumerate() {
-            scope.spawn(async move { take(t + 1, task) });
+        for task in rest.iter_mut() {
+            scope.spawn(async move { take(task) });
         }
-        // The calling thread takes the first share itself rather than wait.
-        take(0, first);
+        // The calling thread works too rather than wait.
+        take(first);
     });
 }
 
-/// Where answer list `list` of item `index` sits in its task's list, when
-/// each task records after each of its interleaved items the length of each
-/// of its `lists` answer lists (`ends[k * lists + list]` for its `k`-th item).
-fn segment(ends: &[usize], index: usize, count: usize, lists: usize, list: usize) -> Range<usize> {
-    let k = index / count;
-    let start = if k == 0 {
+/// For every item, the task that took it and its rank among that task's
+/// items, from each task's `taken` list.
+fn owners<'a>(taken: impl Iterator<Item = &'a [u32]>, items: usize, owner: &mut Vec<(u32, u32)>) {
+    owner.clear();
+    owner.resize(items, (0, 0));
+    for (task, indices) in taken.enumerate() {
+        for (rank, &index) in indices.iter().enumerate() {
+            owner[index as usize] = (task as u32, rank as u32);
+        }
+    }
+}
+
+/// Where answer list `list` of a task's `rank`-th item sits in that task's
+/// list, when the task records after each item the length of each of its
+/// `lists` answer lists (`ends[rank * lists + list]`).
+fn segment(ends: &[usize], rank: usize, lists: usize, list: usize) -> Range<usize> {
+    let start = if rank == 0 {
         0
     } else {
-        ends[(k - 1) * lists + list]
+        ends[(rank - 1) * lists + list]
     };
-    start..ends[k * lists + list]
+    start..ends[rank * lists + list]
 }
 
 /// Replaces the pending items of a depth-first traversal by the items they
@@ -343,21 +373,28 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.keys.iter_mut().for_each(Vec::clear);
             task.ends.clear();
         }
-        run_interleaved(frontier, tasks, |&item, task| {
-            task.ws.cull_stack.clear();
-            task.ws.cull_stack.push(item);
-            let keys = &mut task.keys;
-            let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
-                keys[view].push(key);
-                ControlFlow::Continue(())
-            });
-            task.ends.extend(keys.iter().map(Vec::len));
-        });
+        run_claimed(
+            frontier,
+            tasks,
+            |task| &mut task.taken,
+            |&item, task| {
+                task.ws.cull_stack.clear();
+                task.ws.cull_stack.push(item);
+                let keys = &mut task.keys;
+                let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
+                    keys[view].push(key);
+                    ControlFlow::Continue(())
+                });
+                task.ends.extend(keys.iter().map(Vec::len));
+            },
+        );
+        let owner = &mut pws.owner;
+        owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's answers come first.
-        for index in (0..frontier.len()).rev() {
-            let task = &tasks[index % count];
+        for &(task, rank) in owner.iter().rev() {
+            let task = &tasks[task as usize];
             for (view, list) in out.iter_mut().enumerate() {
-                let range = segment(&task.ends, index, count, views.len(), view);
+                let range = segment(&task.ends, rank as usize, views.len(), view);
                 list.extend_from_slice(&task.keys[view][range]);
             }
         }
@@ -465,22 +502,29 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.pairs.clear();
             task.ends.clear();
         }
-        run_interleaved(frontier, tasks, |&item, task| {
-            task.ws.join_stack.clear();
-            task.ws.join_stack.push(item);
-            let pairs = &mut task.pairs;
-            while let Some(pair) = task.ws.join_stack.pop() {
-                let _ = step(pair, &mut task.ws, &mut |a, b| {
-                    pairs.push((a, b));
-                    ControlFlow::Continue(())
-                });
-            }
-            task.ends.push(pairs.len());
-        });
+        run_claimed(
+            frontier,
+            tasks,
+            |task| &mut task.taken,
+            |&item, task| {
+                task.ws.join_stack.clear();
+                task.ws.join_stack.push(item);
+                let pairs = &mut task.pairs;
+                while let Some(pair) = task.ws.join_stack.pop() {
+                    let _ = step(pair, &mut task.ws, &mut |a, b| {
+                        pairs.push((a, b));
+                        ControlFlow::Continue(())
+                    });
+                }
+                task.ends.push(pairs.len());
+            },
+        );
+        let owner = &mut pws.owner;
+        owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's pairs come first.
-        for index in (0..frontier.len()).rev() {
-            let task = &tasks[index % count];
-            out.extend_from_slice(&task.pairs[segment(&task.ends, index, count, 1, 0)]);
+        for &(task, rank) in owner.iter().rev() {
+            let task = &tasks[task as usize];
+            out.extend_from_slice(&task.pairs[segment(&task.ends, rank as usize, 1, 0)]);
         }
     }
 }
