@@ -120,6 +120,13 @@
 //! system and a frame's queries do not allocate. Its [`QueryStats`] count
 //! nodes visited and entries tested.
 //!
+//! With feature `parallel`, `par_cast_rays`, `par_visible_into`,
+//! `par_self_join_into` and `par_cross_join_into` (with a
+//! `ParallelWorkspace`) split a batch of rays, a cull or a join over
+//! bevy_tasks' `ComputeTaskPool`, the pool a Bevy app already runs on, and
+//! return exactly the single-threaded answers in the same order; the plugin's
+//! query systems then use them.
+//!
 //! ## Accuracy options
 //!
 //! Two knobs trade precision for time; neither ever drops a right answer:
