@@ -201,24 +201,23 @@ fn run_split<T: Sync, S: Send>(items: &[T], tasks: &mut [S], body: impl Fn(&[T],
     });
 }
 
-/// Runs `body(index, item, task)` for every item on the pool: each task
-/// claims the next unclaimed item until none is left, so a thread that
-/// starts late or draws cheap items simply takes more of them. Each task
-/// notes the indices it took, in order, in `taken(task)`.
-fn run_claimed<T: Sync, S: Send>(
+/// Runs `body(item, task)` for every item on the pool: each task claims the
+/// next unclaimed item until none is left, so a thread that starts late or
+/// draws cheap items simply takes more of them. Each task notes the indices
+/// it took, in order, in its `taken`.
+fn run_claimed<T: Sync, K: Send>(
     items: &[T],
-    tasks: &mut [S],
-    taken: impl Fn(&mut S) -> &mut Vec<u32> + Sync,
-    body: impl Fn(&T, &mut S) + Sync,
+    tasks: &mut [TaskScratch<K>],
+    body: impl Fn(&T, &mut TaskScratch<K>) + Sync,
 ) {
     let next = AtomicUsize::new(0);
-    let (next, body, taken) = (&next, &body, &taken);
-    let take = move |task: &mut S| {
-        taken(task).clear();
+    let (next, body) = (&next, &body);
+    let take = move |task: &mut TaskScratch<K>| {
+        task.taken.clear();
         loop {
             let index = next.fetch_add(1, Ordering::Relaxed);
             let Some(item) = items.get(index) else { break };
-            taken(task).push(index as u32);
+            task.taken.push(index as u32);
             body(item, task);
         }
     };
@@ -373,21 +372,16 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.keys.iter_mut().for_each(Vec::clear);
             task.ends.clear();
         }
-        run_claimed(
-            frontier,
-            tasks,
-            |task| &mut task.taken,
-            |&item, task| {
-                task.ws.cull_stack.clear();
-                task.ws.cull_stack.push(item);
-                let keys = &mut task.keys;
-                let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
-                    keys[view].push(key);
-                    ControlFlow::Continue(())
-                });
-                task.ends.extend(keys.iter().map(Vec::len));
-            },
-        );
+        run_claimed(frontier, tasks, |&item, task| {
+            task.ws.cull_stack.clear();
+            task.ws.cull_stack.push(item);
+            let keys = &mut task.keys;
+            let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
+                keys[view].push(key);
+                ControlFlow::Continue(())
+            });
+            task.ends.extend(keys.iter().map(Vec::len));
+        });
         let owner = &mut pws.owner;
         owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's answers come first.
@@ -502,23 +496,18 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.pairs.clear();
             task.ends.clear();
         }
-        run_claimed(
-            frontier,
-            tasks,
-            |task| &mut task.taken,
-            |&item, task| {
-                task.ws.join_stack.clear();
-                task.ws.join_stack.push(item);
-                let pairs = &mut task.pairs;
-                while let Some(pair) = task.ws.join_stack.pop() {
-                    let _ = step(pair, &mut task.ws, &mut |a, b| {
-                        pairs.push((a, b));
-                        ControlFlow::Continue(())
-                    });
-                }
-                task.ends.push(pairs.len());
-            },
-        );
+        run_claimed(frontier, tasks, |&item, task| {
+            task.ws.join_stack.clear();
+            task.ws.join_stack.push(item);
+            let pairs = &mut task.pairs;
+            while let Some(pair) = task.ws.join_stack.pop() {
+                let _ = step(pair, &mut task.ws, &mut |a, b| {
+                    pairs.push((a, b));
+                    ControlFlow::Continue(())
+                });
+            }
+            task.ends.push(pairs.len());
+        });
         let owner = &mut pws.owner;
         owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's pairs come first.
