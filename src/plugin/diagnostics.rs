@@ -5,7 +5,7 @@ use std::sync::Mutex;
 
 use bevy_ecs::prelude::*;
 
-use super::frame_queries::{self, FrameWorkspace};
+use super::frame_queries::FrameWorkspace;
 use super::index::SyncCount;
 
 /// Work done by one query family in one frame.
@@ -24,7 +24,8 @@ pub struct QueryWork {
 impl QueryWork {
     /// Adds one run's statistics, taken from its workspace.
     pub(crate) fn record(&mut self, queries: usize, workspace: &mut FrameWorkspace) {
-        let stats = frame_queries::take_stats(workspace);
+        // Both workspaces (one thread or a task per thread) sum their own.
+        let stats = workspace.take_stats();
         self.runs += 1;
         self.queries += queries as u64;
         self.nodes_visited += stats.nodes_visited;

@@ -5,7 +5,7 @@
 use bevy_ecs::entity::Entity;
 
 use crate::query::{CullMode, JoinMode, RayMode, RayResults};
-use crate::tree::{QueryStats, RTree};
+use crate::tree::RTree;
 use crate::{Frustum, Ray, SpatialError};
 
 /// The workspace each query system keeps from frame to frame.
@@ -68,9 +68,4 @@ pub(crate) fn cross_join_into(
     return tree.par_cross_join_into(other, distance, mode, ws, out);
     #[cfg(not(feature = "parallel"))]
     return tree.cross_join_into(other, distance, mode, ws, out);
-}
-
-/// The work counted since the last call, reset.
-pub(crate) fn take_stats(ws: &mut FrameWorkspace) -> QueryStats {
-    ws.take_stats()
 }

@@ -157,9 +157,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ControlFlow::Continue(())
     }
 
-    /// One node: its lanes against the planes each view still needs. A leaf
-    /// reports its visible entries; an internal node pushes its visible
-    /// children onto the stack (and reports nothing).
+    /// One node: its lanes against the planes each view still needs. A node
+    /// inside every plane of every view still alive reports its whole
+    /// subtree; otherwise a leaf reports its visible entries and an internal
+    /// node pushes its visible children onto the stack (and reports nothing).
     pub(crate) fn cull_step<V>(
         &self,
         views: &[PreparedView],

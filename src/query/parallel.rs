@@ -156,6 +156,16 @@ impl<K> ParallelWorkspace<K> {
         stats
     }
 
+    /// How many tasks a cull or join over a tree of `entries` entries is
+    /// split into; `1` means "run on the calling thread".
+    fn tree_split(&self, entries: usize) -> usize {
+        if entries < self.min_entries_to_split {
+            1
+        } else {
+            task_count(usize::MAX, 1)
+        }
+    }
+
     /// The scratch of `count` tasks (at least one), noted as the last split.
     fn tasks(&mut self, count: usize) -> &mut [TaskScratch<K>] {
         let count = count.max(1);
@@ -321,11 +331,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         out: &mut [Vec<K>],
     ) {
         assert_eq!(frustums.len(), out.len(), "one output list per frustum");
-        let count = if self.len() < pws.min_entries_to_split {
-            1
-        } else {
-            task_count(usize::MAX, 1)
-        };
+        let count = pws.tree_split(self.len());
         if count == 1 {
             let ws = &mut pws.tasks(1)[0].ws;
             self.visible_into(frustums, mode, ws, out);
@@ -404,11 +410,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         out: &mut Vec<(K, K)>,
     ) -> Result<(), SpatialError> {
         let exact = check_distance(distance)?;
-        if self.len() < pws.min_entries_to_split || task_count(usize::MAX, 1) == 1 {
+        let count = pws.tree_split(self.len());
+        if count == 1 {
             let ws = &mut pws.tasks(1)[0].ws;
             return self.self_join_into(distance, mode, ws, out);
         }
-        let count = task_count(usize::MAX, 1);
         let root = self.root();
         self.par_join(
             (root, root),
@@ -432,16 +438,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         out: &mut Vec<(K, K)>,
     ) -> Result<(), SpatialError> {
         let exact = check_distance(distance)?;
-        let entries = self.len().max(other.len());
-        if self.is_empty()
-            || other.is_empty()
-            || entries < pws.min_entries_to_split
-            || task_count(usize::MAX, 1) == 1
-        {
+        let count = pws.tree_split(self.len().max(other.len()));
+        if count == 1 || self.is_empty() || other.is_empty() {
             let ws = &mut pws.tasks(1)[0].ws;
             return self.cross_join_into(other, distance, mode, ws, out);
         }
-        let count = task_count(usize::MAX, 1);
         self.par_join(
             (self.root(), other.root()),
             count,
