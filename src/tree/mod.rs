@@ -6,7 +6,7 @@
 //! - `insert`, `split`: choose-subtree and R*-style splits;
 //! - `remove`: removal with condensing and reinsertion of orphans;
 //! - `update`: moves, absorbed by enlarged bounds when small;
-//! - `bulk`: sort-tile-recursive loading and rebuilds;
+//! - `bulk`: bulk loading (median cuts on the widest axis) and rebuilds;
 //! - `optimize`: local repacking of churned subtrees;
 //! - `validate`: the invariant checker of SEMANTICS S10.
 

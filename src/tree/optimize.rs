@@ -1,11 +1,12 @@
 //! Repair of churn: a node whose subtree absorbed many reinsertions has its
-//! grandchildren re-tiled among its children (STR), which restores compact,
-//! low-overlap leaves without touching anything above the node.
+//! grandchildren re-tiled among its children (with the bulk loader's
+//! tiling), which restores compact, low-overlap leaves without touching
+//! anything above the node.
 
 use smallvec::SmallVec;
 
 use super::RTree;
-use super::bulk::{group_range, str_partition};
+use super::bulk::{group_range, tile_partition};
 use super::node::FREE_LEVEL;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
@@ -64,7 +65,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .iter()
             .flat_map(|&child| self.node_entries(child))
             .collect();
-        str_partition(&mut entries, children.len());
+        tile_partition(&mut entries, children.len());
         for (group, &child) in children.iter().enumerate() {
             let range = group_range(entries.len(), children.len(), group);
             self.fill_node(child, &entries[range]);
