@@ -30,6 +30,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use bevy_tasks::{ComputeTaskPool, TaskPool};
 
 use super::frustum::{CullItem, PreparedView, fully_inside};
+use super::join::JoinItem;
 use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
 use crate::geometry::predicates::check_distance;
 use crate::geometry::{Frustum, Ray, SpatialError};
@@ -67,7 +68,7 @@ const ITEMS_PER_TASK: usize = 16;
 pub struct ParallelWorkspace<K> {
     tasks: Vec<TaskScratch<K>>,
     cull_frontier: [Vec<CullItem>; 2],
-    join_frontier: [Vec<(u32, u32)>; 2],
+    join_frontier: [Vec<JoinItem>; 2],
     /// Per frontier item: the task that took it and its rank there.
     owner: Vec<(u32, u32)>,
     min_rays_per_task: usize,
@@ -417,11 +418,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         }
         let root = self.root();
         self.par_join(
-            (root, root),
+            JoinItem::roots(root, root),
             count,
             pws,
             out,
-            |(a, _)| self.node(a).is_leaf(),
+            |item| self.node(item.a).is_leaf(),
             |pair, ws, mut visit| self.self_join_step(pair, distance, exact, mode, ws, &mut visit),
         );
         Ok(())
@@ -444,11 +445,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             return self.cross_join_into(other, distance, mode, ws, out);
         }
         self.par_join(
-            (self.root(), other.root()),
+            JoinItem::roots(self.root(), other.root()),
             count,
             pws,
             out,
-            |(a, b)| self.node(a).is_leaf() && other.node(b).is_leaf(),
+            |item| self.node(item.a).is_leaf() && other.node(item.b).is_leaf(),
             |pair, ws, mut visit| {
                 self.cross_join_step(other, pair, distance, exact, mode, ws, &mut visit)
             },
@@ -459,15 +460,15 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     /// The split shared by both joins, from the root pair `start`.
     fn par_join<Step>(
         &self,
-        start: (u32, u32),
+        start: JoinItem,
         count: usize,
         pws: &mut ParallelWorkspace<K>,
         out: &mut Vec<(K, K)>,
-        may_report: impl Fn((u32, u32)) -> bool,
+        may_report: impl Fn(JoinItem) -> bool,
         step: Step,
     ) where
         Step: Fn(
-                (u32, u32),
+                JoinItem,
                 &mut QueryWorkspace,
                 &mut dyn FnMut(K, K) -> ControlFlow<()>,
             ) -> ControlFlow<()>

@@ -33,7 +33,7 @@ pub struct QueryWorkspace {
     /// Single-ray traversal stack: node index and its entry `t`.
     pub(crate) ray_stack: Vec<(u32, f32)>,
     /// Join traversal stack: pairs of node indices.
-    pub(crate) join_stack: Vec<(u32, u32)>,
+    pub(crate) join_stack: Vec<super::join::JoinItem>,
     /// Sorted proxy indices of the moved entries of an incremental join.
     pub(crate) moved: Vec<u32>,
     /// Best-first queue of nodes by squared distance (nearest neighbours).
