@@ -207,3 +207,47 @@ fn bulk_load_gives_an_optimal_height_and_optimize_keeps_it_valid() {
     .unwrap();
     assert_eq!(tree.overlapping(&probe), oracle.overlapping(&probe));
 }
+
+#[test]
+fn optimize_packs_churned_leaves_full_and_frees_the_rest() {
+    let settings = TreeSettings {
+        repack_threshold: 1,
+        ..TreeSettings::default()
+    };
+    let mut tree: RTree<u32> = RTree::with_settings(settings).unwrap();
+    let mut oracle = BruteForce::default();
+    // One-by-one inserts split leaves into half-full ones.
+    let ids: Vec<ProxyId> = (0..2_000u32)
+        .map(|i| {
+            let p = Vec3::new((i % 50) as f32 * 3.0, 0.0, (i / 50) as f32 * 3.0);
+            oracle.insert(i, unit_at(p));
+            tree.insert(i, unit_at(p)).unwrap()
+        })
+        .collect();
+    // Moves that leave their leaves mark the leaves' parents as churned.
+    for (i, id) in ids.iter().enumerate().step_by(3) {
+        let p = Vec3::new(
+            ((i * 17) % 50) as f32 * 3.0,
+            1.5,
+            ((i * 31) % 40) as f32 * 3.0,
+        );
+        tree.update(*id, unit_at(p)).unwrap();
+        oracle.update(i as u32, unit_at(p));
+    }
+    tree.validate().unwrap();
+    let before = tree.node_count();
+    assert!(tree.pending_repairs() > 0);
+    tree.optimize(usize::MAX);
+    tree.validate().unwrap();
+    assert!(
+        tree.node_count() < before,
+        "repacking into full leaves frees some: {} -> {}",
+        before,
+        tree.node_count()
+    );
+    let everything = Aabb::new(Vec3::splat(-10.0), Vec3::splat(200.0)).unwrap();
+    assert_eq!(
+        tree.overlapping(&everything),
+        oracle.overlapping(&everything)
+    );
+}

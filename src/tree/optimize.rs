@@ -1,13 +1,13 @@
 //! Repair of churn: a node whose subtree absorbed many reinsertions has its
-//! grandchildren re-tiled among its children (with the bulk loader's
-//! tiling), which restores compact, low-overlap leaves without touching
-//! anything above the node.
+//! grandchildren re-tiled among as few of its children as hold them (with
+//! the bulk loader's tiling), which restores compact, full, low-overlap
+//! leaves without touching anything above the node.
 
 use smallvec::SmallVec;
 
-use super::RTree;
 use super::bulk::{group_range, tile_partition};
 use super::node::FREE_LEVEL;
+use super::{Entry, RTree};
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Number of level-1 nodes that churn has marked for repair by
@@ -53,7 +53,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         done
     }
 
-    /// Re-tiles the grandchildren of `node` among its children.
+    /// Re-tiles the grandchildren of `node` among as few of its children as
+    /// hold them (at least the minimum fill).
     fn repack(&mut self, node: u32) {
         self.maintenance.repacks += 1;
         self.churn[node as usize] = 0;
@@ -65,15 +66,25 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .iter()
             .flat_map(|&child| self.node_entries(child))
             .collect();
-        tile_partition(&mut entries, children.len());
+        // As few leaves as hold the entries: splits leave leaves half full,
+        // and fewer, fuller leaves mean fewer nodes for every query. Leaves
+        // left over go back to the pool.
+        let groups = entries
+            .len()
+            .div_ceil(W)
+            .max(Self::MIN_FILL)
+            .min(children.len());
+        tile_partition(&mut entries, groups);
+        let mut kept: SmallVec<[Entry; 16]> = SmallVec::new();
         for (group, &child) in children.iter().enumerate() {
-            let range = group_range(entries.len(), children.len(), group);
-            self.fill_node(child, &entries[range]);
+            if group < groups {
+                let range = group_range(entries.len(), groups, group);
+                self.fill_node(child, &entries[range]);
+                kept.push(self.node_entry(child));
+            } else {
+                self.free_node(child);
+            }
         }
-        for (lane, &child) in children.iter().enumerate() {
-            let bound = self.node_bound(child);
-            self.nodes[node as usize].set_lane_box(lane, &bound);
-        }
-        self.nodes[node as usize].refresh_order();
+        self.fill_node(node, &kept);
     }
 }
