@@ -318,3 +318,37 @@ fn batches_of_the_standard_scene_match_single_rays() {
     }
     assert!(hits > 100, "the scene's rays hit things ({hits})");
 }
+
+/// Batches big enough that runs of over 1,024 rays are tested together
+/// below the root (the batched path), in every mode, equal to single rays.
+#[test]
+fn large_batches_match_single_rays_in_every_mode() {
+    let (mut scene, tree, _) = common::town_tree(20_000, 6);
+    let mut rays = Vec::new();
+    for _ in 0..4 {
+        scene.advance_frame();
+        rays.extend(scene.coherent_rays());
+    }
+    rays.extend(scene.incoherent_rays(500));
+    let mut ws = QueryWorkspace::default();
+    let mut out = RayResults::default();
+    let mut all = Vec::new();
+    for mode in [RayMode::First, RayMode::All { limit: None }, RayMode::Any] {
+        tree.cast_rays(&rays, mode, &mut ws, &mut out);
+        for (i, ray) in rays.iter().enumerate() {
+            match mode {
+                RayMode::First => {
+                    assert_eq!(out.first(i).unwrap(), tree.cast_ray(ray, &mut ws).unwrap())
+                }
+                RayMode::All { .. } => {
+                    tree.cast_ray_all(ray, None, &mut ws, &mut all).unwrap();
+                    assert_eq!(out.hits(i).unwrap(), &all[..], "ray {i}");
+                }
+                RayMode::Any => assert_eq!(
+                    out.any(i).unwrap(),
+                    tree.ray_hits_any(ray, &mut ws).unwrap()
+                ),
+            }
+        }
+    }
+}

@@ -69,7 +69,7 @@ fn used_lanes<const W: usize>(node: &Node<W>) -> u32 {
 /// A lane of either node that can be within the distance of anything in
 /// the other node overlaps the region, so one mask test per node dismisses
 /// every other lane. Carrying the region costs one box per pair; computing
-/// each node's bound from its lanes instead cost about a third of a join.
+/// each node's bound from its lanes instead cost about a fifth of a join.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct JoinItem {
     pub a: u32,

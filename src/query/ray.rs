@@ -4,9 +4,10 @@
 //! precomputed order along the ray's dominant axis), pruning every node whose
 //! entry `t` is beyond the best hit so far. A batch follows the "batched
 //! incoherent rays" scheme: every live ray of the batch is tested against a
-//! node's lanes at once, the rays that hit a child are moved to the front of
-//! the batch, and the recursion continues with that count only, so the tree is
-//! traversed once per batch however incoherent the rays.
+//! node's lanes at once, the rays that hit a child are gathered into that
+//! child's run, and the recursion continues with that run only. Once a run
+//! is smaller than [`MIN_RAYS_TO_BATCH`], its rays go on one at a time, in
+//! run order, as single rays do (see there for why and the measurements).
 
 use std::ops::{ControlFlow, Range};
 
@@ -127,6 +128,20 @@ pub(crate) struct RayBatchScratch {
     /// per lane, the batches the children are visited with.
     buckets: Vec<Vec<u32>>,
 }
+
+/// Below this many rays, a run of a batch goes on one ray at a time.
+///
+/// A batch tests a node once for all its rays, but each ray then visits
+/// children in the first ray's order and learns its first hit late, so it
+/// tests more entries than alone (on the standard scene 32 against 24 per
+/// ray). Alone, each ray goes near to far by its own entry `t` and prunes
+/// as soon as it has a hit; run after run, rays through the same subtree
+/// still follow each other while that subtree is in cache. Measured on the
+/// standard scene (1,000 rays per batch, after 90 frames of churn): runs
+/// batched down to a single ray 1.08 ms for incoherent rays and 0.51 ms for
+/// coherent ones; with 64 as the limit, 0.83 and 0.53 ms; with 1,024, so
+/// that only the root is tested for the whole batch, 0.73 and 0.55 ms.
+const MIN_RAYS_TO_BATCH: usize = 1024;
 
 /// Lane mask and entry `t` per lane of one ray against one node: the S4
 /// predicate of `predicates::ray_box_entry`, written over the lane arrays
@@ -314,8 +329,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         Ok(found)
     }
 
-    /// Casts a batch of rays in one traversal of the tree and writes slot
-    /// `i` of `out` for ray `i`. An invalid ray gets its own error; the other
+    /// Casts a batch of rays together (the module documentation says how)
+    /// and writes slot `i` of `out` for ray `i`. An invalid ray gets its own error; the other
     /// slots are unaffected. Answers equal those of the single-ray calls.
     ///
     /// ```
@@ -458,35 +473,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if node.is_leaf() {
             ws.stats.entries_tested += (active.len() * node.len()) as u64;
             for &r in active.iter() {
-                let r = r as usize;
-                let limit = s.limits[r];
-                if limit < 0.0 {
-                    continue;
-                }
-                let (mut hits, lane_t) = ray_lanes(&s.tests[r], limit, node);
-                while hits != 0 {
-                    let lane = hits.trailing_zeros() as usize;
-                    hits &= hits - 1;
-                    let (t, proxy) = (lane_t[lane], node.child[lane]);
-                    s.found[r] = true;
-                    match mode {
-                        RayMode::First => {
-                            let (best_t, best_proxy) = s.best[r];
-                            let better = best_proxy == NIL
-                                || t < best_t
-                                || (t == best_t && self.key_of(proxy) < self.key_of(best_proxy));
-                            if better {
-                                s.best[r] = (t, proxy);
-                                s.limits[r] = t;
-                            }
-                        }
-                        RayMode::All { .. } => s.all.push((r as u32, t, proxy)),
-                        RayMode::Any => {
-                            s.limits[r] = -1.0;
-                            break;
-                        }
-                    }
-                }
+                self.leaf_hits(node, r as usize, mode, s);
             }
             return;
         }
@@ -526,11 +513,83 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let dir = s.tests[active[0] as usize].dir;
         for lane in near_to_far(node, dir) {
             let run = &bucket[starts[lane] as usize..next[lane] as usize];
-            if !run.is_empty() {
+            if run.len() >= MIN_RAYS_TO_BATCH {
                 self.batch_node(node.child[lane], run, depth + 1, mode, ws);
+            } else {
+                for &r in run {
+                    self.single_from(node.child[lane], r as usize, mode, ws);
+                }
             }
         }
         ws.rays.buckets[depth] = bucket;
+    }
+
+    /// Ray `r` of a batch through the subtree of `start` on its own, as
+    /// [`RTree::visit_ray`] does: children pushed far to near by where the
+    /// ray enters them, and skipped once the ray's limit is below that.
+    fn single_from(&self, start: u32, r: usize, mode: RayMode, ws: &mut QueryWorkspace) {
+        let mut stack = std::mem::take(&mut ws.ray_stack);
+        stack.clear();
+        stack.push((start, 0.0));
+        while let Some((index, entry_t)) = stack.pop() {
+            let limit = ws.rays.limits[r];
+            if limit < 0.0 || entry_t > limit {
+                continue;
+            }
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            if node.is_leaf() {
+                ws.stats.entries_tested += node.len() as u64;
+                self.leaf_hits(node, r, mode, &mut ws.rays);
+                continue;
+            }
+            let (mut hits, lane_t) = ray_lanes(&ws.rays.tests[r], limit, node);
+            let mut order: smallvec::SmallVec<[(f32, usize); 16]> = smallvec::SmallVec::new();
+            while hits != 0 {
+                let lane = hits.trailing_zeros() as usize;
+                hits &= hits - 1;
+                order.push((lane_t[lane], lane));
+            }
+            order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+            for &(t, lane) in &order {
+                stack.push((node.child[lane], t));
+            }
+        }
+        ws.ray_stack = stack;
+    }
+
+    /// Ray `r` against the entries of a leaf: records its hits by `mode`
+    /// and shrinks its limit (first hit) or ends it (any hit).
+    #[inline]
+    fn leaf_hits(&self, node: &Node<W>, r: usize, mode: RayMode, s: &mut RayBatchScratch) {
+        let limit = s.limits[r];
+        if limit < 0.0 {
+            return;
+        }
+        let (mut hits, lane_t) = ray_lanes(&s.tests[r], limit, node);
+        while hits != 0 {
+            let lane = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            let (t, proxy) = (lane_t[lane], node.child[lane]);
+            s.found[r] = true;
+            match mode {
+                RayMode::First => {
+                    let (best_t, best_proxy) = s.best[r];
+                    let better = best_proxy == NIL
+                        || t < best_t
+                        || (t == best_t && self.key_of(proxy) < self.key_of(best_proxy));
+                    if better {
+                        s.best[r] = (t, proxy);
+                        s.limits[r] = t;
+                    }
+                }
+                RayMode::All { .. } => s.all.push((r as u32, t, proxy)),
+                RayMode::Any => {
+                    s.limits[r] = -1.0;
+                    break;
+                }
+            }
+        }
     }
 }
 

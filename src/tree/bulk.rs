@@ -7,8 +7,8 @@ use crate::geometry::{Aabb, SpatialError};
 use crate::tree::ProxyId;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
-    /// Inserts many entries at once and rebuilds the whole tree (see
-    /// [`tile_partition`] for how entries are grouped).
+    /// Inserts many entries at once and rebuilds the whole tree, grouping
+    /// entries by median cuts on their widest axis.
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
     /// handles stay valid. All boxes are checked first: if any is invalid,
