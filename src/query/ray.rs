@@ -203,6 +203,29 @@ fn near_to_far<const W: usize>(node: &Node<W>, dir: [f32; 3]) -> impl Iterator<I
     (0..order.len()).map(move |i| order[if forward { i } else { order.len() - 1 - i }] as usize)
 }
 
+/// Pushes the children of `node` that the ray hits (`mask`) in order of
+/// where it enters them (`lane_t`), far to near, so the nearest is popped
+/// first: the earliest hit shrinks the limit soonest.
+#[inline]
+fn push_far_to_near<const W: usize>(
+    stack: &mut Vec<(u32, f32)>,
+    node: &Node<W>,
+    mask: u32,
+    lane_t: &[f32; W],
+) {
+    let mut order: smallvec::SmallVec<[(f32, usize); 16]> = smallvec::SmallVec::new();
+    let mut hits = mask;
+    while hits != 0 {
+        let lane = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        order.push((lane_t[lane], lane));
+    }
+    order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    for &(t, lane) in &order {
+        stack.push((node.child[lane], t));
+    }
+}
+
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// The visitor core for one ray: calls `visit(key, t, )` for hits with
     /// `t <= limit`, where the limit starts at `ray.max_t` and becomes
@@ -246,20 +269,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     }
                 }
             } else {
-                // Children in order of where the ray enters them (computed
-                // above anyway), pushed far to near so the nearest is popped
-                // first: the earliest hit shrinks the limit soonest.
-                let mut order: smallvec::SmallVec<[(f32, usize); 16]> = smallvec::SmallVec::new();
-                let mut hits = mask;
-                while hits != 0 {
-                    let lane = hits.trailing_zeros() as usize;
-                    hits &= hits - 1;
-                    order.push((lane_t[lane], lane));
-                }
-                order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-                for &(t, lane) in &order {
-                    stack.push((node.child[lane], t));
-                }
+                push_far_to_near(stack, node, mask, &lane_t);
             }
         }
         Ok(())
@@ -543,17 +553,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.leaf_hits(node, r, mode, &mut ws.rays);
                 continue;
             }
-            let (mut hits, lane_t) = ray_lanes(&ws.rays.tests[r], limit, node);
-            let mut order: smallvec::SmallVec<[(f32, usize); 16]> = smallvec::SmallVec::new();
-            while hits != 0 {
-                let lane = hits.trailing_zeros() as usize;
-                hits &= hits - 1;
-                order.push((lane_t[lane], lane));
-            }
-            order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-            for &(t, lane) in &order {
-                stack.push((node.child[lane], t));
-            }
+            let (mask, lane_t) = ray_lanes(&ws.rays.tests[r], limit, node);
+            push_far_to_near(&mut stack, node, mask, &lane_t);
         }
         ws.ray_stack = stack;
     }
