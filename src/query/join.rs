@@ -101,6 +101,27 @@ fn meet(a: &Aabb, b: &Aabb) -> Aabb {
     }
 }
 
+/// The children of `node` whose bound overlaps `region`, each with the
+/// region cut down to its bound grown by `distance`: the items of a node
+/// that descends alone against a shorter partner.
+#[inline]
+fn children_in_region<'a, const W: usize>(
+    node: &'a Node<W>,
+    region: &'a Aabb,
+    distance: f32,
+) -> impl Iterator<Item = (u32, Aabb)> + 'a {
+    let mut mask = node.overlap_mask(region) & used_lanes(node);
+    std::iter::from_fn(move || {
+        if mask == 0 {
+            return None;
+        }
+        let lane = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let cut = meet(region, &reach(&node.lane_box(lane), distance));
+        Some((node.child[lane], cut))
+    })
+}
+
 /// The lane-pair step both joins share, for two nodes at the same level
 /// whose pairs lie in `region`: for each lane `i` of `na`, the lanes `j` of
 /// `nb` that can still be within `distance`. Pairs of internal nodes go on
@@ -309,16 +330,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.stats.nodes_visited += 1;
         let JoinItem { a, b, region } = item;
         let (na, nb) = (self.node(a), other.node(b));
-        // The taller side descends alone; a child's region is the pair's
-        // region cut down to the child's bound grown by `distance`.
+        // The taller side descends alone.
         if na.level > nb.level {
-            let mut mask = na.overlap_mask(&region) & used_lanes(na);
-            while mask != 0 {
-                let i = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let region = meet(&region, &reach(&na.lane_box(i), distance));
+            for (child, region) in children_in_region(na, &region, distance) {
                 ws.join_stack.push(JoinItem {
-                    a: na.child[i],
+                    a: child,
                     b,
                     region,
                 });
@@ -326,14 +342,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return ControlFlow::Continue(());
         }
         if nb.level > na.level {
-            let mut mask = nb.overlap_mask(&region) & used_lanes(nb);
-            while mask != 0 {
-                let j = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let region = meet(&region, &reach(&nb.lane_box(j), distance));
+            for (child, region) in children_in_region(nb, &region, distance) {
                 ws.join_stack.push(JoinItem {
                     a,
-                    b: nb.child[j],
+                    b: child,
                     region,
                 });
             }
