@@ -42,6 +42,33 @@ impl JoinMode {
     }
 }
 
+/// A join's distance test, checked once per call: `distance` grows boxes
+/// during the traversal, its `f64` widening decides entry pairs by `mode`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct JoinTest {
+    distance: f32,
+    exact: f64,
+    mode: JoinMode,
+}
+
+impl JoinTest {
+    /// Fails with [`SpatialError::InvalidDistance`] unless `distance` is
+    /// finite and `>= 0`.
+    pub(crate) fn new(distance: f32, mode: JoinMode) -> Result<Self, SpatialError> {
+        Ok(JoinTest {
+            distance,
+            exact: check_distance(distance)?,
+            mode,
+        })
+    }
+
+    /// The pair predicate of SEMANTICS S8.
+    #[inline]
+    fn accepts(&self, a: &Aabb, b: &Aabb) -> bool {
+        self.mode.accepts(a, b, self.exact)
+    }
+}
+
 /// `aabb` grown by `distance` on every side, rounded outward, so that a lane
 /// overlap test against it never dismisses a pair within `distance`.
 #[inline(always)]
@@ -128,15 +155,12 @@ fn children_in_region<'a, const W: usize>(
 /// the join stack; pairs of leaf entries that pass the exact predicate go to
 /// `emit(i, j)`. With `same_node`, each unordered lane pair is taken once
 /// and every child is also paired with itself.
-#[allow(clippy::too_many_arguments)]
 fn join_lane_pairs<const W: usize>(
     na: &Node<W>,
     nb: &Node<W>,
     same_node: bool,
     region: &Aabb,
-    distance: f32,
-    exact: f64,
-    mode: JoinMode,
+    test: JoinTest,
     ws: &mut QueryWorkspace,
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
@@ -153,7 +177,7 @@ fn join_lane_pairs<const W: usize>(
         let i = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
         let lane_box = na.lane_box(i);
-        let lane_reach = reach(&lane_box, distance);
+        let lane_reach = reach(&lane_box, test.distance);
         let mut mask = nb.overlap_mask(&lane_reach) & b_lanes;
         if same_node {
             mask &= !((2u32 << i) - 1);
@@ -175,9 +199,9 @@ fn join_lane_pairs<const W: usize>(
                 ws.join_stack.push(JoinItem {
                     a: na.child[i],
                     b: nb.child[j],
-                    region: meet(&lane_reach, &reach(&nb.lane_box(j), distance)),
+                    region: meet(&lane_reach, &reach(&nb.lane_box(j), test.distance)),
                 });
-            } else if mode.accepts(&lane_box, &nb.lane_box(j), exact) {
+            } else if test.accepts(&lane_box, &nb.lane_box(j)) {
                 emit(i, j)?;
             }
         }
@@ -213,15 +237,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(K, K) -> ControlFlow<()>,
     {
-        let exact = check_distance(distance)?;
+        let test = JoinTest::new(distance, mode)?;
         ws.join_stack.clear();
         ws.join_stack
             .push(JoinItem::roots(self.root(), self.root()));
         while let Some(item) = ws.join_stack.pop() {
-            if self
-                .self_join_step(item, distance, exact, mode, ws, &mut visit)
-                .is_break()
-            {
+            if self.self_join_step(item, test, ws, &mut visit).is_break() {
                 break;
             }
         }
@@ -230,33 +251,21 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// One pair of nodes of a self join: pushes the child pairs that can
     /// still hold pairs within `distance`, or, for two leaves, reports the
-    /// entry pairs. `exact` is `distance` checked and widened to `f64`.
+    /// entry pairs.
     pub(crate) fn self_join_step(
         &self,
         item: JoinItem,
-        distance: f32,
-        exact: f64,
-        mode: JoinMode,
+        test: JoinTest,
         ws: &mut QueryWorkspace,
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
         ws.stats.nodes_visited += 1;
         let JoinItem { a, b, region } = item;
         let (na, nb) = (self.node(a), self.node(b));
-        join_lane_pairs(
-            na,
-            nb,
-            a == b,
-            &region,
-            distance,
-            exact,
-            mode,
-            ws,
-            |i, j| {
-                let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
-                visit(ka.min(kb), ka.max(kb))
-            },
-        )
+        join_lane_pairs(na, nb, a == b, &region, test, ws, |i, j| {
+            let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
+            visit(ka.min(kb), ka.max(kb))
+        })
     }
 
     /// All pairs of [`RTree::visit_self_join`], sorted.
@@ -296,7 +305,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(K, K) -> ControlFlow<()>,
     {
-        let exact = check_distance(distance)?;
+        let test = JoinTest::new(distance, mode)?;
         if self.is_empty() || other.is_empty() {
             return Ok(());
         }
@@ -305,7 +314,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .push(JoinItem::roots(self.root(), other.root()));
         while let Some(item) = ws.join_stack.pop() {
             if self
-                .cross_join_step(other, item, distance, exact, mode, ws, &mut visit)
+                .cross_join_step(other, item, test, ws, &mut visit)
                 .is_break()
             {
                 break;
@@ -316,14 +325,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// One pair of nodes of a cross join: the taller side descends alone
     /// until the levels meet; then as [`RTree::self_join_step`].
-    #[allow(clippy::too_many_arguments)]
     pub(crate) fn cross_join_step(
         &self,
         other: &RTree<K, W>,
         item: JoinItem,
-        distance: f32,
-        exact: f64,
-        mode: JoinMode,
+        test: JoinTest,
         ws: &mut QueryWorkspace,
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
@@ -332,7 +338,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let (na, nb) = (self.node(a), other.node(b));
         // The taller side descends alone.
         if na.level > nb.level {
-            for (child, region) in children_in_region(na, &region, distance) {
+            for (child, region) in children_in_region(na, &region, test.distance) {
                 ws.join_stack.push(JoinItem {
                     a: child,
                     b,
@@ -342,7 +348,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return ControlFlow::Continue(());
         }
         if nb.level > na.level {
-            for (child, region) in children_in_region(nb, &region, distance) {
+            for (child, region) in children_in_region(nb, &region, test.distance) {
                 ws.join_stack.push(JoinItem {
                     a,
                     b: child,
@@ -351,7 +357,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             return ControlFlow::Continue(());
         }
-        join_lane_pairs(na, nb, false, &region, distance, exact, mode, ws, |i, j| {
+        join_lane_pairs(na, nb, false, &region, test, ws, |i, j| {
             let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
             if ka == kb {
                 return ControlFlow::Continue(());
@@ -410,7 +416,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(K, K) -> ControlFlow<()>,
     {
-        let exact = check_distance(distance)?;
+        let test = JoinTest::new(distance, mode)?;
         let mut sorted = std::mem::take(&mut ws.moved);
         sorted.clear();
         for id in moved {
@@ -427,7 +433,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 if c == m || (c < m && sorted.binary_search(&c).is_ok()) {
                     return ControlFlow::Continue(());
                 }
-                if mode.accepts(&box_m, box_c, exact) {
+                if test.accepts(&box_m, box_c) {
                     let key_c = self.key_of(c);
                     inner = visit(key_m.min(key_c), key_m.max(key_c));
                     return inner;

@@ -30,9 +30,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use bevy_tasks::{ComputeTaskPool, TaskPool};
 
 use super::frustum::{CullItem, PreparedView, fully_inside};
-use super::join::JoinItem;
+use super::join::{JoinItem, JoinTest};
 use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
-use crate::geometry::predicates::check_distance;
 use crate::geometry::{Frustum, Ray, SpatialError};
 use crate::tree::{QueryStats, RTree};
 
@@ -410,7 +409,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         pws: &mut ParallelWorkspace<K>,
         out: &mut Vec<(K, K)>,
     ) -> Result<(), SpatialError> {
-        let exact = check_distance(distance)?;
+        let test = JoinTest::new(distance, mode)?;
         let count = pws.tree_split(self.len());
         if count == 1 {
             let ws = &mut pws.tasks(1)[0].ws;
@@ -423,7 +422,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             pws,
             out,
             |item| self.node(item.a).is_leaf(),
-            |pair, ws, mut visit| self.self_join_step(pair, distance, exact, mode, ws, &mut visit),
+            |pair, ws, mut visit| self.self_join_step(pair, test, ws, &mut visit),
         );
         Ok(())
     }
@@ -438,7 +437,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         pws: &mut ParallelWorkspace<K>,
         out: &mut Vec<(K, K)>,
     ) -> Result<(), SpatialError> {
-        let exact = check_distance(distance)?;
+        let test = JoinTest::new(distance, mode)?;
         let count = pws.tree_split(self.len().max(other.len()));
         if count == 1 || self.is_empty() || other.is_empty() {
             let ws = &mut pws.tasks(1)[0].ws;
@@ -450,9 +449,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             pws,
             out,
             |item| self.node(item.a).is_leaf() && other.node(item.b).is_leaf(),
-            |pair, ws, mut visit| {
-                self.cross_join_step(other, pair, distance, exact, mode, ws, &mut visit)
-            },
+            |pair, ws, mut visit| self.cross_join_step(other, pair, test, ws, &mut visit),
         );
         Ok(())
     }
