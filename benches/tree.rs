@@ -7,6 +7,8 @@
 //!   scene from scratch;
 //! - `frame/moves_10k`: applying one frame's 10,000 moves to a persistent
 //!   index (the scene is advanced untimed before each timed frame);
+//!   `bevy_rtree` gathers them into one `update_batch`, as the plugin does,
+//!   and `bevy_rtree_one_by_one` calls `update` per move;
 //! - `query/boxes`: 1,000 box-overlap queries against a fresh and a churned
 //!   tree and the peers, all over the same boxes.
 //!
@@ -366,32 +368,40 @@ struct BevyMoves {
     scene: TownScene,
     tree: RTree<u32>,
     ids: Vec<ProxyId>,
+    /// One `update_batch` per frame, or one `update` per move.
+    batched: bool,
+    /// The frame's moves, for `update_batch` (kept to avoid reallocating).
+    moves: Vec<(ProxyId, Aabb)>,
 }
 
 impl BevyMoves {
-    fn new(scene: &TownScene) -> Self {
+    fn new(scene: &TownScene, batched: bool) -> Self {
         let (tree, ids) = bulk_tree(scene.boxes());
         BevyMoves {
             scene: scene.clone(),
             tree,
             ids,
+            batched,
+            moves: Vec::new(),
         }
-    }
-
-    fn apply(tree: &mut RTree<u32>, ids: &[ProxyId], moved: &[u32], boxes: &[Aabb]) {
-        for &i in moved {
-            tree.update(ids[i as usize], boxes[i as usize]).unwrap();
-        }
-        black_box(tree.optimize(usize::MAX));
     }
 
     fn frame(&mut self, iters: u64) -> Duration {
-        let (tree, ids) = (&mut self.tree, &self.ids);
+        let (tree, ids, moves, batched) =
+            (&mut self.tree, &self.ids, &mut self.moves, self.batched);
         time_frames(&mut self.scene, iters, |moved, boxes| {
-            Self::apply(tree, ids, moved, boxes)
+            if batched {
+                moves.clear();
+                moves.extend(moved.iter().map(|&i| (ids[i as usize], boxes[i as usize])));
+                tree.update_batch(moves).unwrap();
+            } else {
+                for &i in moved {
+                    tree.update(ids[i as usize], boxes[i as usize]).unwrap();
+                }
+            }
+            black_box(tree.optimize(usize::MAX));
         })
     }
-
     fn check(&self, queries: &[Aabb]) {
         self.tree.validate().unwrap();
         let oracle = oracle_of(self.scene.boxes());
@@ -538,7 +548,8 @@ fn bench_moves(c: &mut Criterion) {
     let scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
     let checks = query_boxes(MOVE_CHECK_QUERIES, SEED ^ 0x3073);
 
-    let mut bevy = BevyMoves::new(&scene);
+    let mut bevy = BevyMoves::new(&scene, true);
+    let mut bevy_single = BevyMoves::new(&scene, false);
     let mut rstar = RstarMoves::new(&scene);
     let mut parry0 = ParryMoves::new(&scene, 0.0);
     let mut parry01 = ParryMoves::new(&scene, 0.1);
@@ -549,11 +560,13 @@ fn bench_moves(c: &mut Criterion) {
 
     // A few frames, then check every contender against the oracle.
     bevy.frame(CHECK_FRAMES as u64);
+    bevy_single.frame(CHECK_FRAMES as u64);
     rstar.frame(CHECK_FRAMES as u64);
     parry0.frame(CHECK_FRAMES as u64);
     parry01.frame(CHECK_FRAMES as u64);
     flat.frame(CHECK_FRAMES as u64);
     bevy.check(&checks);
+    bevy_single.check(&checks);
     rstar.check(&checks);
     parry0.check(&checks);
     parry01.check(&checks);
@@ -564,6 +577,9 @@ fn bench_moves(c: &mut Criterion) {
 
     let mut group = c.benchmark_group("frame/moves_10k");
     group.bench_function("bevy_rtree", |b| b.iter_custom(|iters| bevy.frame(iters)));
+    group.bench_function("bevy_rtree_one_by_one", |b| {
+        b.iter_custom(|iters| bevy_single.frame(iters))
+    });
     group.bench_function("rstar", |b| b.iter_custom(|iters| rstar.frame(iters)));
     group.bench_function("parry3d_margin0", |b| {
         b.iter_custom(|iters| parry0.frame(iters))
@@ -576,6 +592,7 @@ fn bench_moves(c: &mut Criterion) {
 
     // The indexes went through many more frames while timed: check again.
     bevy.check(&checks);
+    bevy_single.check(&checks);
     rstar.check(&checks);
     parry0.check(&checks);
     parry01.check(&checks);
@@ -583,9 +600,10 @@ fn bench_moves(c: &mut Criterion) {
     let frames = (bevy.scene.frame() - frames_before).max(1);
     let stats = bevy.tree.take_maintenance_stats();
     eprintln!(
-        "moves bench: bevy_rtree ran {frames} timed/warm-up frames; per frame: in place {:.0}, in leaf {:.0}, reinserted {:.0}, splits {:.1}, condensed {:.1}, repacks {:.1}; height {}; post-check ok",
+        "moves bench: bevy_rtree ran {frames} timed/warm-up frames; per frame: in place {:.0}, in leaf {:.0}, leaf grown {:.0}, reinserted {:.0}, splits {:.1}, condensed {:.1}, repacks {:.1}; height {}; post-check ok",
         stats.moves_in_place as f64 / frames as f64,
         stats.moves_in_leaf as f64 / frames as f64,
+        stats.moves_leaf_grown as f64 / frames as f64,
         stats.moves_reinserted as f64 / frames as f64,
         stats.splits as f64 / frames as f64,
         stats.condensed_nodes as f64 / frames as f64,
@@ -599,14 +617,15 @@ fn bench_moves(c: &mut Criterion) {
 
 fn bench_queries(c: &mut Criterion) {
     // The churned tree: 600 frames of moves + optimize on the standard scene.
-    let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
-    let (mut churned, ids) = bulk_tree(scene.boxes());
-    churned.take_maintenance_stats();
+    let mut churn = BevyMoves::new(&TownScene::new(TownScene::STANDARD_COUNT, SEED), true);
+    churn.tree.take_maintenance_stats();
     let start = Instant::now();
-    for _ in 0..CHURN_FRAMES {
-        scene.advance_frame();
-        BevyMoves::apply(&mut churned, &ids, scene.moved(), scene.boxes());
-    }
+    churn.frame(CHURN_FRAMES as u64);
+    let BevyMoves {
+        scene,
+        tree: mut churned,
+        ..
+    } = churn;
     churned.validate().unwrap();
     let s = churned.take_maintenance_stats();
     eprintln!(

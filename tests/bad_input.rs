@@ -48,6 +48,13 @@ fn invalid_boxes_are_refused_by_every_mutation() {
             Err(SpatialError::InvalidBox),
             "{bad:?}"
         );
+        // A batch whose bad move comes after good ones moves nothing.
+        let far = common::aabb([40.0; 3], [41.0; 3]);
+        assert_eq!(
+            tree.update_batch(&[(ids[1], far), (ids[2], far), (ids[3], bad)]),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
         let bulk = vec![(1000, common::aabb([0.0; 3], [1.0; 3])), (1001, bad)];
         assert_eq!(
             tree.insert_bulk(bulk),
@@ -93,6 +100,11 @@ fn unknown_and_stale_handles_are_refused() {
         tree.update(foreign, common::aabb([0.0; 3], [1.0; 3])),
         Err(SpatialError::UnknownProxy)
     );
+    let far = common::aabb([40.0; 3], [41.0; 3]);
+    assert_eq!(
+        tree.update_batch(&[(ids[1], far), (foreign, far)]),
+        Err(SpatialError::UnknownProxy)
+    );
     assert_eq!(snapshot(&tree), before);
 
     tree.remove(ids[0]).unwrap();
@@ -100,6 +112,13 @@ fn unknown_and_stale_handles_are_refused() {
     assert_eq!(reused.index(), ids[0].index(), "the slot is reused");
     assert_eq!(tree.remove(ids[0]), Err(SpatialError::UnknownProxy));
     assert_eq!(tree.get(ids[0]), Err(SpatialError::UnknownProxy));
+    let before = snapshot(&tree);
+    assert_eq!(
+        tree.update_batch(&[(ids[1], far), (ids[0], far)]),
+        Err(SpatialError::UnknownProxy),
+        "a stale handle in a batch"
+    );
+    assert_eq!(snapshot(&tree), before);
     assert_eq!(tree.get(reused).unwrap().0, 77);
     tree.validate().unwrap();
 }

@@ -21,6 +21,8 @@ enum Op {
     Update(usize, Aabb),
     /// A teleport a million metres away.
     Teleport(usize, Aabb),
+    /// One `update_batch` call; the same entry may appear more than once.
+    Batch(Vec<(usize, Aabb)>),
     Remove(usize),
     /// Remove and reinsert in one frame.
     RemoveReinsert(usize),
@@ -39,6 +41,7 @@ fn op() -> impl Strategy<Value = Op> {
         2 => (any::<usize>(), common::grid_box()).prop_map(|(i, b)| Op::Update(i, b)),
         1 => (any::<usize>(), common::grid_box())
             .prop_map(|(i, b)| Op::Teleport(i, Aabb { min: b.min + 1e6, max: b.max + 1e6 })),
+        2 => prop::collection::vec((0usize..8, common::grid_box()), 0..12).prop_map(Op::Batch),
         3 => any::<usize>().prop_map(Op::Remove),
         1 => any::<usize>().prop_map(Op::RemoveReinsert),
         1 => prop::collection::vec(common::grid_box(), 0..40).prop_map(Op::Bulk),
@@ -108,6 +111,17 @@ impl<const W: usize> Model<W> {
                     self.tree.update(id, *aabb).unwrap();
                     self.oracle.update(key, *aabb);
                 }
+            }
+            Op::Batch(moves) => {
+                let mut batch = Vec::new();
+                for (i, aabb) in moves {
+                    if let Some((key, id)) = self.pick(*i) {
+                        batch.push((id, *aabb));
+                        // In order, so a repeated entry ends at its last box.
+                        self.oracle.update(key, *aabb);
+                    }
+                }
+                self.tree.update_batch(&batch).unwrap();
             }
             Op::Remove(i) => {
                 if let Some((key, id)) = self.pick(*i) {

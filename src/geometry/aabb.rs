@@ -70,6 +70,7 @@ impl Aabb {
     }
 
     /// Whether the box is valid as an entry or query (see the type docs).
+    #[inline]
     pub fn is_valid(&self) -> bool {
         let bound = Vec3::splat(MAX_COORD);
         // Written with `<=` on finite values only: NaN fails every comparison.
@@ -81,6 +82,7 @@ impl Aabb {
     }
 
     /// `Ok(())` when [`Aabb::is_valid`], else [`SpatialError::InvalidBox`].
+    #[inline]
     pub fn validate(&self) -> Result<(), SpatialError> {
         if self.is_valid() {
             Ok(())

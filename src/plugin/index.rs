@@ -159,10 +159,10 @@ pub(crate) fn sync_layer<L: Component>(
             Or<(Changed<SpatialBounds>, Added<L>)>,
         ),
     >,
-    mut fresh: Local<Vec<(Entity, Aabb)>>,
+    mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    apply_changes(&mut index, changed.iter(), &mut fresh, &sink);
+    apply_changes(&mut index, changed.iter(), &mut scratch, &sink);
 }
 
 /// Applies the changed boxes of this frame to the main index. Gaining the
@@ -172,25 +172,38 @@ pub(crate) fn sync_layer<L: Component>(
 pub(crate) fn sync_main(
     mut index: ResMut<SpatialIndex>,
     changed: Query<(Entity, &SpatialBounds), (Without<NoSpatialIndex>, Changed<SpatialBounds>)>,
-    mut fresh: Local<Vec<(Entity, Aabb)>>,
+    mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    apply_changes(&mut index, changed.iter(), &mut fresh, &sink);
+    apply_changes(&mut index, changed.iter(), &mut scratch, &sink);
+}
+
+/// A sync system's buffers, kept from frame to frame so syncing does not
+/// allocate.
+#[derive(Default)]
+pub(crate) struct SyncScratch {
+    /// Entities seen for the first time, inserted together.
+    fresh: Vec<(Entity, Aabb)>,
+    /// Indexed entities that moved, applied as one batch.
+    moves: Vec<(ProxyId, Aabb)>,
 }
 
 /// Updates, inserts or (for invalid boxes) removes each changed entity.
 ///
+/// Moves are gathered and applied as one [`RTree::update_batch`](crate::RTree::update_batch).
 /// New entities are gathered and inserted together: when they outnumber the
 /// entities already indexed (the first frame of a scene) the tree is bulk
 /// loaded, which is several times faster and gives a better tree.
 fn apply_changes<'a, L: Component>(
     index: &mut SpatialIndex<L>,
     changed: impl Iterator<Item = (Entity, &'a SpatialBounds)>,
-    fresh: &mut Vec<(Entity, Aabb)>,
+    scratch: &mut SyncScratch,
     sink: &DiagnosticsSink,
 ) {
     let mut count = SyncCount::default();
+    let SyncScratch { fresh, moves } = scratch;
     fresh.clear();
+    moves.clear();
     for (entity, bounds) in changed {
         let aabb = bounds.0;
         if let Err(error) = aabb.validate() {
@@ -211,13 +224,20 @@ fn apply_changes<'a, L: Component>(
             continue;
         }
         match index.proxies.get(&entity) {
-            Some(&id) => {
-                // The box was validated above and the handle is live.
-                if index.tree.update(id, aabb).is_ok() {
-                    count.updated += 1;
-                }
-            }
+            Some(&id) => moves.push((id, aabb)),
             None => fresh.push((entity, aabb)),
+        }
+    }
+    // Every box was validated above and every handle is live, so the batch
+    // is accepted whole; should it ever be refused, the moves go one by one
+    // and only the refused ones are skipped.
+    if index.tree.update_batch(moves).is_ok() {
+        count.updated = moves.len() as u64;
+    } else {
+        for &(id, aabb) in moves.iter() {
+            if index.tree.update(id, aabb).is_ok() {
+                count.updated += 1;
+            }
         }
     }
     if !fresh.is_empty() {
