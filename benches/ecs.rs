@@ -103,6 +103,8 @@ struct CoreTown {
     visible: [Vec<u32>; 1],
     hits: RayResults<u32>,
     pairs: Vec<(u32, u32)>,
+    /// A frame's moves per tree (all, enemies, barrels), for `update_batch`.
+    moves: [Vec<(ProxyId, Aabb)>; 3],
 }
 
 /// A tree of the scene's entities in `range`, keyed by scene index, and the
@@ -143,6 +145,7 @@ impl CoreTown {
             visible: [Vec::new()],
             hits: RayResults::default(),
             pairs: Vec::new(),
+            moves: Default::default(),
         }
     }
 
@@ -156,7 +159,8 @@ impl CoreTown {
         self.rays.extend(self.scene.coherent_rays());
     }
 
-    /// The plugin's sync: every moved box into every tree that holds it.
+    /// The plugin's sync: every moved box into every tree that holds it,
+    /// as one `update_batch` per tree.
     fn sync(&mut self) {
         let CoreTown {
             scene,
@@ -166,23 +170,29 @@ impl CoreTown {
             enemy_ids,
             barrels,
             barrel_ids,
+            moves: [all_moves, enemy_moves, barrel_moves],
             ..
         } = self;
         let boxes = scene.boxes();
+        for batch in [&mut *all_moves, &mut *enemy_moves, &mut *barrel_moves] {
+            batch.clear();
+        }
         for &index in scene.moved() {
             let i = index as usize;
             let aabb = boxes[i];
-            all.update(all_ids[i], aabb)
-                .expect("live handle, valid box");
+            all_moves.push((all_ids[i], aabb));
             if TownScene::ENEMIES.contains(&i) {
-                enemies
-                    .update(enemy_ids[i - TownScene::ENEMIES.start], aabb)
-                    .expect("live handle, valid box");
+                enemy_moves.push((enemy_ids[i - TownScene::ENEMIES.start], aabb));
             } else if TownScene::BARRELS.contains(&i) {
-                barrels
-                    .update(barrel_ids[i - TownScene::BARRELS.start], aabb)
-                    .expect("live handle, valid box");
+                barrel_moves.push((barrel_ids[i - TownScene::BARRELS.start], aabb));
             }
+        }
+        for (tree, batch) in [
+            (all, all_moves),
+            (enemies, enemy_moves),
+            (barrels, barrel_moves),
+        ] {
+            tree.update_batch(batch).expect("live handles, valid boxes");
         }
     }
 
