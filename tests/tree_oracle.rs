@@ -6,7 +6,7 @@ mod common;
 use std::collections::BTreeMap;
 
 use bevy_rtree::oracle::BruteForce;
-use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, TreeSettings};
+use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, SplitStrategy, TreeSettings};
 use glam::Vec3;
 use proptest::prelude::*;
 
@@ -216,5 +216,14 @@ proptest! {
     fn width_16_without_margin_matches_oracle(ops in ops()) {
         let settings = TreeSettings { margin: 0.0, displacement_factor: 0.0, ..eager_settings() };
         run::<16>(settings, &ops);
+    }
+
+    /// Width 4 splits often, so each strategy divides many nodes here.
+    #[test]
+    fn every_split_strategy_matches_oracle(
+        ops in ops(),
+        split in prop_oneof![Just(SplitStrategy::Quadratic), Just(SplitStrategy::Median)],
+    ) {
+        run::<4>(TreeSettings { split, ..eager_settings() }, &ops);
     }
 }

@@ -6,9 +6,8 @@ use crate::geometry::Aabb;
 
 /// The entity's world box; adding it puts the entity into the index.
 ///
-/// Set it yourself (or, with the `bevy` feature, let
-/// [`LocalBounds`](crate::plugin::LocalBounds) derive it from the
-/// `GlobalTransform`). Only entities whose `SpatialBounds` changed since the
+/// Set it yourself (or, with the `bevy` feature, let `LocalBounds` derive it
+/// from the `GlobalTransform`). Only entities whose `SpatialBounds` changed since the
 /// last frame touch the index. Removing the component, or despawning the
 /// entity, takes it out of every index at once, before any later query.
 ///

@@ -120,7 +120,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.maintenance.splits += 1;
         let mut entries: SmallVec<[Entry; 17]> = self.node_entries(node);
         entries.push(entry);
-        let cut = super::split::choose_split(&mut entries, Self::MIN_FILL);
+        let cut = super::split::choose_split(&mut entries, Self::MIN_FILL, self.settings.split);
 
         let level = self.nodes[node as usize].level;
         let parent = self.nodes[node as usize].parent;

@@ -24,6 +24,7 @@ mod validate;
 
 pub use handle::ProxyId;
 pub use settings::TreeSettings;
+pub use split::SplitStrategy;
 pub use stats::{MaintenanceStats, QueryStats};
 pub use update::MoveKind;
 pub use validate::InvariantViolation;

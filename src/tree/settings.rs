@@ -2,6 +2,7 @@
 
 use glam::Vec3;
 
+use super::SplitStrategy;
 use crate::geometry::{Aabb, SpatialError};
 
 /// Tuning of an [`RTree`](super::RTree). Every field has a documented range;
@@ -36,6 +37,8 @@ pub struct TreeSettings {
     /// Restructuring moves a node's subtree absorbs before
     /// [`RTree::optimize`](super::RTree::optimize) repacks it. Range `>= 1`.
     pub repack_threshold: u32,
+    /// How an overflowing node divides its entries. Any strategy is valid.
+    pub split: SplitStrategy,
 }
 
 impl Default for TreeSettings {
@@ -45,6 +48,7 @@ impl Default for TreeSettings {
             margin_fraction: 0.0,
             displacement_factor: 4.0,
             repack_threshold: 16,
+            split: SplitStrategy::RStar,
         }
     }
 }

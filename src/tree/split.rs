@@ -1,16 +1,61 @@
-//! The R*-tree split: pick the axis whose distributions have the least total
-//! margin, then the distribution on it with the least overlap, then the
-//! least total area. Heuristics are computed in `f64` (SEMANTICS S0).
+//! Node splits: when a node overflows, its `W + 1` entries are divided in
+//! two. Three strategies, chosen by [`TreeSettings::split`]; all heuristics
+//! are computed in `f64` (SEMANTICS S0) from the entries' structural bounds.
+//!
+//! [`TreeSettings::split`]: super::TreeSettings::split
+
+use smallvec::SmallVec;
 
 use super::Entry;
 use crate::geometry::Aabb;
 
+/// How an overflowing node divides its entries between itself and a new
+/// sibling. Every strategy leaves both nodes at least the minimum fill, and
+/// none changes any answer: they differ in insert and move cost and in how
+/// well the tree keeps its shape under churn (see the crate docs, "Accuracy
+/// options", for the measurements behind the default).
+///
+/// ```
+/// use bevy_rtree::{RTree, SplitStrategy, TreeSettings};
+///
+/// let settings = TreeSettings { split: SplitStrategy::Median, ..TreeSettings::default() };
+/// let tree: RTree<u32> = RTree::with_settings(settings)?;
+/// assert_eq!(tree.settings().split, SplitStrategy::Median);
+/// # Ok::<(), bevy_rtree::SpatialError>(())
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SplitStrategy {
+    /// The R*-tree split: the axis whose candidate divisions have the least
+    /// total margin, then on it the division with the least overlap, then the
+    /// least total surface. Sorts the entries six times.
+    #[default]
+    RStar,
+    /// Guttman's quadratic split: the two entries that waste the most surface
+    /// together seed the groups; each remaining entry, the one with the
+    /// strongest preference first, joins the group it enlarges least.
+    Quadratic,
+    /// Halves the entries at the median centre along the axis on which the
+    /// centres spread widest, the bulk loader's cut. One sort.
+    Median,
+}
+
 /// Reorders `entries` so that `entries[..cut]` and `entries[cut..]` are the
 /// two new nodes, each with at least `min_fill` entries, and returns `cut`.
-pub(super) fn choose_split(entries: &mut [Entry], min_fill: usize) -> usize {
-    let n = entries.len();
-    debug_assert!(n >= 2 * min_fill);
+pub(super) fn choose_split(
+    entries: &mut [Entry],
+    min_fill: usize,
+    strategy: SplitStrategy,
+) -> usize {
+    debug_assert!(entries.len() >= 2 * min_fill);
+    match strategy {
+        SplitStrategy::RStar => rstar_split(entries, min_fill),
+        SplitStrategy::Quadratic => quadratic_split(entries, min_fill),
+        SplitStrategy::Median => median_split(entries),
+    }
+}
 
+fn rstar_split(entries: &mut [Entry], min_fill: usize) -> usize {
+    let n = entries.len();
     // Sort keys: per axis, by lower then by upper bound (R*: both orders).
     let mut best_axis = (f64::INFINITY, 0usize);
     for axis in 0..3 {
@@ -44,6 +89,92 @@ pub(super) fn choose_split(entries: &mut [Entry], min_fill: usize) -> usize {
     best.2
 }
 
+fn quadratic_split(entries: &mut [Entry], min_fill: usize) -> usize {
+    let n = entries.len();
+    let surface_growth =
+        |group: &Aabb, e: &Entry| group.union(&e.bound).half_area() - group.half_area();
+    // Seeds: the pair whose common bound wastes the most surface.
+    let mut seeds = (0, 1);
+    let mut worst = f64::NEG_INFINITY;
+    for i in 0..n {
+        for j in i + 1..n {
+            let (a, b) = (&entries[i].bound, &entries[j].bound);
+            let waste = a.union(b).half_area() - a.half_area() - b.half_area();
+            if waste > worst {
+                worst = waste;
+                seeds = (i, j);
+            }
+        }
+    }
+    // `group[i]`: 0 or 1 once entry `i` is assigned.
+    let mut group: SmallVec<[Option<u8>; 17]> = SmallVec::from_elem(None, n);
+    let mut bounds = [entries[seeds.0].bound, entries[seeds.1].bound];
+    let mut counts = [1usize, 1];
+    group[seeds.0] = Some(0);
+    group[seeds.1] = Some(1);
+    let mut left = n - 2;
+    while left > 0 {
+        // A group that needs every remaining entry to reach the minimum
+        // fill takes them all.
+        if let Some(short) = (0..2).find(|&g| counts[g] + left == min_fill) {
+            for slot in group.iter_mut().filter(|g| g.is_none()) {
+                *slot = Some(short as u8);
+            }
+            counts[short] += left;
+            break;
+        }
+        // Next: the entry that prefers one group the most.
+        let (mut next, mut growths, mut strongest) = (0, [0.0; 2], f64::NEG_INFINITY);
+        for (i, e) in entries.iter().enumerate() {
+            if group[i].is_some() {
+                continue;
+            }
+            let g = [surface_growth(&bounds[0], e), surface_growth(&bounds[1], e)];
+            let preference = (g[0] - g[1]).abs();
+            if preference > strongest {
+                (next, growths, strongest) = (i, g, preference);
+            }
+        }
+        // It joins the group it grows least; ties go to the smaller group
+        // by surface, then by count.
+        let key = |g: usize| (growths[g], bounds[g].half_area(), counts[g]);
+        let chosen = if key(1) < key(0) { 1 } else { 0 };
+        group[next] = Some(chosen as u8);
+        bounds[chosen] = bounds[chosen].union(&entries[next].bound);
+        counts[chosen] += 1;
+        left -= 1;
+    }
+    // Group 0 first, each group in its original order.
+    let ordered: SmallVec<[Entry; 17]> = (0..2u8)
+        .flat_map(|g| {
+            entries
+                .iter()
+                .zip(&group)
+                .filter(move |(_, slot)| **slot == Some(g))
+                .map(|(e, _)| *e)
+        })
+        .collect();
+    entries.copy_from_slice(&ordered);
+    counts[0]
+}
+
+fn median_split(entries: &mut [Entry]) -> usize {
+    let centre = |e: &Entry, axis: usize| e.bound.min[axis] as f64 + e.bound.max[axis] as f64;
+    let spread = |axis: usize| {
+        let (lo, hi) = entries
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), e| {
+                (lo.min(centre(e, axis)), hi.max(centre(e, axis)))
+            });
+        hi - lo
+    };
+    let axis = (0..3)
+        .max_by(|&a, &b| spread(a).total_cmp(&spread(b)))
+        .expect("three axes");
+    entries.sort_by(|a, b| centre(a, axis).total_cmp(&centre(b, axis)));
+    entries.len() / 2
+}
+
 fn sort(entries: &mut [Entry], axis: usize, by_upper: bool) {
     if by_upper {
         entries.sort_by(|a, b| a.bound.max[axis].total_cmp(&b.bound.max[axis]));
@@ -74,4 +205,63 @@ fn overlap_volume(a: &Aabb, b: &Aabb) -> f64 {
     let hi = a.max.min(b.max).as_dvec3();
     let e = (hi - lo).max(glam::DVec3::ZERO);
     e.x * e.y * e.z
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+    use proptest::prelude::*;
+
+    fn entry(child: u32, corner: (i8, i8, i8), size: (u8, u8, u8)) -> Entry {
+        let min = Vec3::new(corner.0 as f32, corner.1 as f32, corner.2 as f32) * 0.5;
+        let max = min + Vec3::new(size.0 as f32, size.1 as f32, size.2 as f32) * 0.25;
+        let aabb = Aabb { min, max };
+        Entry {
+            lane_box: aabb,
+            bound: aabb,
+            child,
+        }
+    }
+
+    fn strategy() -> impl Strategy<Value = SplitStrategy> {
+        prop_oneof![
+            Just(SplitStrategy::RStar),
+            Just(SplitStrategy::Quadratic),
+            Just(SplitStrategy::Median),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+
+        /// Coarse grid corners and sizes, so that entries coincide, touch
+        /// and are flat: every strategy keeps every entry once and leaves
+        /// both halves at least the minimum fill.
+        #[test]
+        fn every_split_keeps_entries_and_minimum_fill(
+            (min_fill, shapes) in (2usize..=6).prop_flat_map(|m| {
+                (Just(m), prop::collection::vec(
+                    ((-3i8..3, -3i8..3, -3i8..3), (0u8..3, 0u8..3, 0u8..3)),
+                    2 * m..=17,
+                ))
+            }),
+            split in strategy(),
+        ) {
+            let mut entries: Vec<Entry> = shapes
+                .iter()
+                .enumerate()
+                .map(|(i, &(corner, size))| entry(i as u32, corner, size))
+                .collect();
+            let cut = choose_split(&mut entries, min_fill, split);
+            prop_assert!(cut >= min_fill && entries.len() - cut >= min_fill);
+            let mut children: Vec<u32> = entries.iter().map(|e| e.child).collect();
+            children.sort_unstable();
+            prop_assert_eq!(children, (0..shapes.len() as u32).collect::<Vec<_>>());
+            for e in &entries {
+                let (corner, size) = shapes[e.child as usize];
+                prop_assert_eq!(e.bound, entry(e.child, corner, size).bound);
+            }
+        }
+    }
 }
