@@ -628,6 +628,28 @@ fn bench_moves(c: &mut Criterion) {
 // ---------------------------------------------------------------------------
 // query/boxes
 
+/// Times `queries` as box-overlap queries on `tree`, under `name`.
+fn bench_tree_boxes(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    name: &str,
+    tree: &RTree<u32>,
+    queries: &[Aabb],
+) {
+    group.bench_function(name, |b| {
+        let mut ws = QueryWorkspace::default();
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut total = 0;
+            for q in queries {
+                out.clear();
+                tree.overlapping_into(q, &mut ws, &mut out);
+                total += out.len();
+            }
+            black_box(total)
+        })
+    });
+}
+
 fn bench_queries(c: &mut Criterion) {
     // The churned tree: 600 frames of moves + optimize on the standard scene.
     let mut churn = BevyMoves::new(&TownScene::new(TownScene::STANDARD_COUNT, SEED), true);
@@ -707,19 +729,7 @@ fn bench_queries(c: &mut Criterion) {
         ("bevy_rtree_fresh", &fresh),
         ("bevy_rtree_churned", &churned),
     ] {
-        group.bench_function(name, |b| {
-            let mut ws = QueryWorkspace::default();
-            let mut out = Vec::new();
-            b.iter(|| {
-                let mut total = 0;
-                for q in &queries {
-                    out.clear();
-                    tree.overlapping_into(q, &mut ws, &mut out);
-                    total += out.len();
-                }
-                black_box(total)
-            })
-        });
+        bench_tree_boxes(&mut group, name, tree, &queries);
     }
     group.bench_function("rstar", |b| {
         let mut out = Vec::new();
@@ -881,19 +891,7 @@ fn bench_splits(c: &mut Criterion) {
             .map(|((name, _), m)| (*name, &m.tree)),
     );
     for (name, tree) in trees {
-        group.bench_function(name, |b| {
-            let mut ws = QueryWorkspace::default();
-            let mut out = Vec::new();
-            b.iter(|| {
-                let mut total = 0;
-                for q in &queries {
-                    out.clear();
-                    tree.overlapping_into(q, &mut ws, &mut out);
-                    total += out.len();
-                }
-                black_box(total)
-            })
-        });
+        bench_tree_boxes(&mut group, name, tree, &queries);
     }
     group.finish();
 }
