@@ -1,4 +1,5 @@
-//! How much the tree enlarges entry boxes, and how it repairs churn.
+//! How much the tree enlarges entry boxes, how it repairs churn, and how it
+//! splits full nodes.
 
 use glam::Vec3;
 
