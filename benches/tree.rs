@@ -628,25 +628,38 @@ fn bench_moves(c: &mut Criterion) {
 // ---------------------------------------------------------------------------
 // query/boxes
 
-/// Times `queries` as box-overlap queries on `tree`, under `name`.
+/// Times one `query/boxes`-style iteration under `name`: every query of
+/// `queries` answered by `answer` into a cleared, reused list.
+fn bench_box_queries<Q>(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    name: &str,
+    queries: &[Q],
+    mut answer: impl FnMut(&Q, &mut Vec<u32>),
+) {
+    group.bench_function(name, |b| {
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut total = 0;
+            for q in queries {
+                out.clear();
+                answer(q, &mut out);
+                total += out.len();
+            }
+            black_box(total)
+        })
+    });
+}
+
+/// [`bench_box_queries`] on one of our trees.
 fn bench_tree_boxes(
     group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
     name: &str,
     tree: &RTree<u32>,
     queries: &[Aabb],
 ) {
-    group.bench_function(name, |b| {
-        let mut ws = QueryWorkspace::default();
-        let mut out = Vec::new();
-        b.iter(|| {
-            let mut total = 0;
-            for q in queries {
-                out.clear();
-                tree.overlapping_into(q, &mut ws, &mut out);
-                total += out.len();
-            }
-            black_box(total)
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_box_queries(group, name, queries, |q, out| {
+        tree.overlapping_into(q, &mut ws, out)
     });
 }
 
@@ -731,41 +744,14 @@ fn bench_queries(c: &mut Criterion) {
     ] {
         bench_tree_boxes(&mut group, name, tree, &queries);
     }
-    group.bench_function("rstar", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            let mut total = 0;
-            for q in &rstar_queries {
-                out.clear();
-                out.extend(rstar.locate_in_envelope_intersecting(*q).map(|g| g.data));
-                total += out.len();
-            }
-            black_box(total)
-        })
+    bench_box_queries(&mut group, "rstar", &rstar_queries, |q, out| {
+        out.extend(rstar.locate_in_envelope_intersecting(*q).map(|g| g.data))
     });
-    group.bench_function("parry3d", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            let mut total = 0;
-            for q in &parry_queries {
-                out.clear();
-                out.extend(parry.intersect_aabb(q));
-                total += out.len();
-            }
-            black_box(total)
-        })
+    bench_box_queries(&mut group, "parry3d", &parry_queries, |q, out| {
+        out.extend(parry.intersect_aabb(q))
     });
-    group.bench_function("brute_force", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            let mut total = 0;
-            for q in &queries {
-                out.clear();
-                soa.overlapping_into(q, &mut out);
-                total += out.len();
-            }
-            black_box(total)
-        })
+    bench_box_queries(&mut group, "brute_force", &queries, |q, out| {
+        soa.overlapping_into(q, out)
     });
     group.finish();
 }
