@@ -50,6 +50,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 while mask != 0 {
                     let lane = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
+                    // Loads of siblings overlap instead of stalling in turn.
+                    self.prefetch_node(node.child[lane]);
                     ws.stack.push(node.child[lane]);
                 }
             }

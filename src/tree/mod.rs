@@ -8,6 +8,7 @@
 //! - `update`: moves, absorbed by enlarged bounds when small;
 //! - `bulk`: bulk loading (median cuts on the widest axis) and rebuilds;
 //! - `optimize`: local repacking of churned subtrees;
+//! - `prefetch`: cache hints for traversals (the crate's only `unsafe`);
 //! - `validate`: the invariant checker of SEMANTICS S10.
 
 mod bulk;
@@ -15,6 +16,7 @@ mod handle;
 mod insert;
 pub(crate) mod node;
 mod optimize;
+mod prefetch;
 mod remove;
 mod settings;
 mod split;
