@@ -17,7 +17,6 @@
 //! - `parallel/cross_join`: enemies x barrels within 5 m, Euclidean;
 //! - `parallel/self_join`: all touching or overlapping pairs (d = 0).
 
-use std::hint::black_box;
 use std::time::Duration;
 
 use bevy_rtree::scene::TownScene;
@@ -26,6 +25,9 @@ use bevy_rtree::{
     RayResults,
 };
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+
+mod common;
+use common::{bench_answers, bench_list};
 
 const SEED: u64 = 0x5EED_2024;
 const WARM_FRAMES: usize = 60;
@@ -149,21 +151,13 @@ fn check(trees: &Trees, inputs: &Inputs, pws: &mut ParallelWorkspace<u32>) {
 
 fn bench_rays(cr: &mut Criterion, trees: &Trees, name: &str, rays: &[Ray]) {
     let mut group = cr.benchmark_group(name);
-    group.bench_function("single", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), RayResults::default());
-        b.iter(|| {
-            trees.all.cast_rays(rays, RayMode::First, &mut ws, &mut out);
-            black_box(&out);
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_answers(&mut group, "single", RayResults::default(), |out| {
+        trees.all.cast_rays(rays, RayMode::First, &mut ws, out);
     });
-    group.bench_function("parallel", |b| {
-        let (mut pws, mut out) = (ParallelWorkspace::default(), RayResults::default());
-        b.iter(|| {
-            trees
-                .all
-                .par_cast_rays(rays, RayMode::First, &mut pws, &mut out);
-            black_box(&out);
-        })
+    let mut pws = ParallelWorkspace::default();
+    bench_answers(&mut group, "parallel", RayResults::default(), |out| {
+        trees.all.par_cast_rays(rays, RayMode::First, &mut pws, out);
     });
     group.finish();
 }
@@ -171,21 +165,16 @@ fn bench_rays(cr: &mut Criterion, trees: &Trees, name: &str, rays: &[Ray]) {
 fn bench_frustum(cr: &mut Criterion, trees: &Trees, name: &str, views: &[Frustum]) {
     let mut group = cr.benchmark_group(name);
     let mode = CullMode::Conservative;
-    group.bench_function("single", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), vec![Vec::new(); views.len()]);
-        b.iter(|| {
-            out.iter_mut().for_each(Vec::clear);
-            trees.all.visible_into(views, mode, &mut ws, &mut out);
-            out.len()
-        })
+    let lists = || vec![Vec::new(); views.len()];
+    let mut ws = QueryWorkspace::default();
+    bench_answers(&mut group, "single", lists(), |out| {
+        out.iter_mut().for_each(Vec::clear);
+        trees.all.visible_into(views, mode, &mut ws, out);
     });
-    group.bench_function("parallel", |b| {
-        let (mut pws, mut out) = (ParallelWorkspace::default(), vec![Vec::new(); views.len()]);
-        b.iter(|| {
-            out.iter_mut().for_each(Vec::clear);
-            trees.all.par_visible_into(views, mode, &mut pws, &mut out);
-            out.len()
-        })
+    let mut pws = ParallelWorkspace::default();
+    bench_answers(&mut group, "parallel", lists(), |out| {
+        out.iter_mut().for_each(Vec::clear);
+        trees.all.par_visible_into(views, mode, &mut pws, out);
     });
     group.finish();
 }
@@ -194,45 +183,29 @@ fn bench_joins(cr: &mut Criterion, trees: &Trees) {
     let (d, mode) = (TownScene::JOIN_DISTANCE, JoinMode::Euclidean);
     let (enemies, barrels) = (&trees.enemies, &trees.barrels);
     let mut group = cr.benchmark_group("parallel/cross_join");
-    group.bench_function("single", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            let result = enemies.cross_join_into(barrels, d, mode, &mut ws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_list(&mut group, "single", |out| {
+        let result = enemies.cross_join_into(barrels, d, mode, &mut ws, out);
+        result.expect("valid distance");
     });
-    group.bench_function("parallel", |b| {
-        let (mut pws, mut out) = (ParallelWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            let result = enemies.par_cross_join_into(barrels, d, mode, &mut pws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        })
+    let mut pws = ParallelWorkspace::default();
+    bench_list(&mut group, "parallel", |out| {
+        let result = enemies.par_cross_join_into(barrels, d, mode, &mut pws, out);
+        result.expect("valid distance");
     });
     group.finish();
 
     let mut group = cr.benchmark_group("parallel/self_join");
     group.sampling_mode(SamplingMode::Flat).sample_size(10);
-    group.bench_function("single", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            let result = trees.all.self_join_into(0.0, mode, &mut ws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_list(&mut group, "single", |out| {
+        let result = trees.all.self_join_into(0.0, mode, &mut ws, out);
+        result.expect("valid distance");
     });
-    group.bench_function("parallel", |b| {
-        let (mut pws, mut out) = (ParallelWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            let result = trees.all.par_self_join_into(0.0, mode, &mut pws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        })
+    let mut pws = ParallelWorkspace::default();
+    bench_list(&mut group, "parallel", |out| {
+        let result = trees.all.par_self_join_into(0.0, mode, &mut pws, out);
+        result.expect("valid distance");
     });
     group.finish();
 }

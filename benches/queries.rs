@@ -59,7 +59,6 @@
 //! `QueryStats` (nodes visited, entries tested).
 
 use std::cell::Cell;
-use std::hint::black_box;
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
@@ -77,6 +76,9 @@ use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhNode, BvhWorkspace, Traver
 use parry3d::query::Ray as ParryRay;
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{AABB as RstarEnvelope, SelectionFunction};
+
+mod common;
+use common::{bench_answers, bench_list};
 
 /// The scene's seed (the same as the other benchmark's).
 const SEED: u64 = 0x5EED_2024;
@@ -1098,105 +1100,56 @@ fn cycle<'a, T>(inputs: &'a [T]) -> impl FnMut() -> &'a T {
 
 fn bench_frustum(cr: &mut Criterion, c: &Contenders) {
     let mut group = cr.benchmark_group("queries/frustum");
-    group.bench_function("bevy_rtree", |b| {
-        let (mut ws, mut out, mut next) =
-            (QueryWorkspace::default(), [Vec::new()], cycle(&c.frustums));
-        b.iter(|| {
-            out[0].clear();
-            let frustum = next();
-            c.bevy.tree.visible_into(
-                std::slice::from_ref(frustum),
-                CullMode::Conservative,
-                &mut ws,
-                &mut out,
-            );
-            out[0].len()
-        })
+    let (mut ws, mut next) = (QueryWorkspace::default(), cycle(&c.frustums));
+    bench_answers(&mut group, "bevy_rtree", [Vec::new()], |out| {
+        out[0].clear();
+        let frustum = std::slice::from_ref(next());
+        let mode = CullMode::Conservative;
+        c.bevy.tree.visible_into(frustum, mode, &mut ws, out);
     });
-    group.bench_function("parry3d", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(&c.frustums));
-        b.iter(|| {
-            out.clear();
-            parry_visible_into(&c.parry.bvh, &Planes::new(next()), &mut out);
-            out.len()
-        })
+    let mut next = cycle(&c.frustums);
+    bench_list(&mut group, "parry3d", |out| {
+        parry_visible_into(&c.parry.bvh, &Planes::new(next()), out);
     });
-    group.bench_function("rstar", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(&c.frustums));
-        b.iter(|| {
-            out.clear();
-            rstar_visible_into(&c.rstar.tree, &Planes::new(next()), &mut out);
-            out.len()
-        })
+    let mut next = cycle(&c.frustums);
+    bench_list(&mut group, "rstar", |out| {
+        rstar_visible_into(&c.rstar.tree, &Planes::new(next()), out);
     });
-    group.bench_function("brute_force", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(&c.frustums));
-        b.iter(|| {
-            out.clear();
-            c.soa.visible_into(&Planes::new(next()), &mut out);
-            out.len()
-        })
+    let mut next = cycle(&c.frustums);
+    bench_list(&mut group, "brute_force", |out| {
+        c.soa.visible_into(&Planes::new(next()), out);
     });
     group.finish();
 }
 
 fn bench_rays(cr: &mut Criterion, c: &Contenders, name: &str, batches: &[Vec<Ray>]) {
     let mut group = cr.benchmark_group(name);
-    group.bench_function("bevy_rtree", |b| {
-        let (mut ws, mut results, mut next) = (
-            QueryWorkspace::default(),
-            RayResults::default(),
-            cycle(batches),
+    let (mut ws, mut next) = (QueryWorkspace::default(), cycle(batches));
+    bench_answers(&mut group, "bevy_rtree", RayResults::default(), |out| {
+        c.bevy.tree.cast_rays(next(), RayMode::First, &mut ws, out);
+    });
+    let (mut ws, mut next) = (QueryWorkspace::default(), cycle(batches));
+    bench_list(&mut group, "bevy_rtree_single", |out| {
+        let hits = next().iter().map(|ray| c.bevy.tree.cast_ray(ray, &mut ws));
+        out.extend(hits.map(|hit| hit.expect("valid ray")));
+    });
+    let mut next = cycle(batches);
+    bench_list(&mut group, "parry3d", |out| {
+        out.extend(
+            next()
+                .iter()
+                .map(|ray| parry_first_hit(&c.parry.bvh, &c.boxes, ray)),
         );
-        b.iter(|| {
-            let rays = next();
-            c.bevy
-                .tree
-                .cast_rays(rays, RayMode::First, &mut ws, &mut results);
-            black_box(&results);
-        })
     });
-    group.bench_function("bevy_rtree_single", |b| {
-        let (mut ws, mut out, mut next) = (QueryWorkspace::default(), Vec::new(), cycle(batches));
-        b.iter(|| {
-            out.clear();
-            for ray in next() {
-                out.push(c.bevy.tree.cast_ray(ray, &mut ws).expect("valid ray"));
-            }
-            out.len()
-        })
-    });
-    group.bench_function("parry3d", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(batches));
-        b.iter(|| {
-            out.clear();
-            for ray in next() {
-                out.push(parry_first_hit(&c.parry.bvh, &c.boxes, ray));
-            }
-            out.len()
-        })
-    });
-    group.bench_function("rstar", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(batches));
-        b.iter(|| {
-            out.clear();
-            for ray in next() {
-                out.push(rstar_first_hit(&c.rstar.tree, ray));
-            }
-            out.len()
-        })
+    let mut next = cycle(batches);
+    bench_list(&mut group, "rstar", |out| {
+        out.extend(next().iter().map(|ray| rstar_first_hit(&c.rstar.tree, ray)));
     });
     // About 0.1 s per iteration: ten samples of one iteration each.
     group.sampling_mode(SamplingMode::Flat).sample_size(10);
-    group.bench_function("brute_force", |b| {
-        let (mut out, mut next) = (Vec::new(), cycle(batches));
-        b.iter(|| {
-            out.clear();
-            for ray in next() {
-                out.push(c.soa.first_hit(&RayPrep::new(ray)));
-            }
-            out.len()
-        })
+    let mut next = cycle(batches);
+    bench_list(&mut group, "brute_force", |out| {
+        out.extend(next().iter().map(|ray| c.soa.first_hit(&RayPrep::new(ray))));
     });
     group.finish();
 }
@@ -1205,63 +1158,33 @@ fn bench_cross_join(cr: &mut Criterion, c: &Contenders) {
     let d = TownScene::JOIN_DISTANCE;
     let mut group = cr.benchmark_group("queries/cross_join");
     group.sampling_mode(SamplingMode::Flat);
-    group.bench_function("bevy_rtree", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            c.bevy_enemies
-                .tree
-                .cross_join_into(
-                    &c.bevy_barrels.tree,
-                    d,
-                    JoinMode::Euclidean,
-                    &mut ws,
-                    &mut out,
-                )
-                .expect("valid distance");
-            out.len()
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_list(&mut group, "bevy_rtree", |out| {
+        let (enemies, barrels) = (&c.bevy_enemies.tree, &c.bevy_barrels.tree);
+        let result = enemies.cross_join_into(barrels, d, JoinMode::Euclidean, &mut ws, out);
+        result.expect("valid distance");
     });
     // The leaves are converted outside the timing: a parry3d user holds its
     // boxes as parry3d AABBs already.
     let enemy_leaves = parry_leaves(&c.boxes, TownScene::ENEMIES);
     let barrel_leaves = parry_leaves(&c.boxes, TownScene::BARRELS);
-    group.bench_function("parry3d_with_build", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            out.clear();
-            let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves);
-            let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves);
-            parry_cross_join(&enemies, &barrels, &c.boxes, d, &mut out);
-            out.len()
-        })
+    bench_list(&mut group, "parry3d_with_build", |out| {
+        let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves);
+        let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves);
+        parry_cross_join(&enemies, &barrels, &c.boxes, d, out);
     });
-    group.bench_function("parry3d_maintained", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            out.clear();
-            let (enemies, barrels) = (&c.parry_enemies.bvh, &c.parry_barrels.bvh);
-            parry_cross_join(enemies, barrels, &c.boxes, d, &mut out);
-            out.len()
-        })
+    bench_list(&mut group, "parry3d_maintained", |out| {
+        let (enemies, barrels) = (&c.parry_enemies.bvh, &c.parry_barrels.bvh);
+        parry_cross_join(enemies, barrels, &c.boxes, d, out);
     });
-    group.bench_function("rstar", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            out.clear();
-            let (enemies, barrels) = (&c.rstar_enemies_grown.tree, &c.rstar_barrels.tree);
-            rstar_cross_join(enemies, barrels, &c.boxes, d, &mut out);
-            out.len()
-        })
+    bench_list(&mut group, "rstar", |out| {
+        let (enemies, barrels) = (&c.rstar_enemies_grown.tree, &c.rstar_barrels.tree);
+        rstar_cross_join(enemies, barrels, &c.boxes, d, out);
     });
-    group.bench_function("brute_force", |b| {
-        let (mut sweep, mut out) = (Sweep::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            let (a, bb) = (TownScene::ENEMIES, TownScene::BARRELS);
-            sweep.cross_join(&c.boxes, a, bb, d, &mut out);
-            out.len()
-        })
+    let mut sweep = Sweep::default();
+    bench_list(&mut group, "brute_force", |out| {
+        let (enemies, barrels) = (TownScene::ENEMIES, TownScene::BARRELS);
+        sweep.cross_join(&c.boxes, enemies, barrels, d, out);
     });
     group.finish();
 }
@@ -1270,40 +1193,24 @@ fn bench_self_join(cr: &mut Criterion, c: &Contenders) {
     let d = SELF_JOIN_DISTANCE;
     let mut group = cr.benchmark_group("queries/self_join");
     group.sampling_mode(SamplingMode::Flat).sample_size(10);
-    group.bench_function("bevy_rtree", |b| {
-        let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            c.bevy
-                .tree
-                .self_join_into(d, JoinMode::Euclidean, &mut ws, &mut out)
-                .expect("valid distance");
-            out.len()
-        })
+    let mut ws = QueryWorkspace::default();
+    bench_list(&mut group, "bevy_rtree", |out| {
+        let result = c
+            .bevy
+            .tree
+            .self_join_into(d, JoinMode::Euclidean, &mut ws, out);
+        result.expect("valid distance");
     });
-    group.bench_function("parry3d", |b| {
-        let (mut ws, mut out) = (BvhWorkspace::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            parry_self_join(&c.parry.bvh, &mut ws, &c.boxes, d, &mut out);
-            out.len()
-        })
+    let mut ws = BvhWorkspace::default();
+    bench_list(&mut group, "parry3d", |out| {
+        parry_self_join(&c.parry.bvh, &mut ws, &c.boxes, d, out);
     });
-    group.bench_function("rstar", |b| {
-        let mut out = Vec::new();
-        b.iter(|| {
-            out.clear();
-            rstar_self_join(&c.rstar.tree, &c.boxes, d, &mut out);
-            out.len()
-        })
+    bench_list(&mut group, "rstar", |out| {
+        rstar_self_join(&c.rstar.tree, &c.boxes, d, out);
     });
-    group.bench_function("brute_force", |b| {
-        let (mut sweep, mut out) = (Sweep::default(), Vec::new());
-        b.iter(|| {
-            out.clear();
-            sweep.self_join(&c.boxes, d, &mut out);
-            out.len()
-        })
+    let mut sweep = Sweep::default();
+    bench_list(&mut group, "brute_force", |out| {
+        sweep.self_join(&c.boxes, d, out);
     });
     group.finish();
 }

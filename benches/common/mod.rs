@@ -1,0 +1,38 @@
+//! What the benches share: the loop that times one contender of a group.
+
+use std::hint::black_box;
+
+use criterion::BenchmarkGroup;
+use criterion::measurement::WallTime;
+
+/// Times `answer`, one query per iteration, writing its answer into `out`.
+/// `out` and whatever `answer` captures (workspaces, input cycles) live
+/// across iterations, as they would across a game's frames, so no timing
+/// includes an allocation; the contenders of a group differ only in their
+/// `answer`.
+pub fn bench_answers<O>(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    mut out: O,
+    mut answer: impl FnMut(&mut O),
+) {
+    group.bench_function(name, |b| {
+        b.iter(|| {
+            answer(&mut out);
+            black_box(&out);
+        })
+    });
+}
+
+/// [`bench_answers`] for a query that appends to a list, which is cleared
+/// before each iteration.
+pub fn bench_list<T>(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    mut append: impl FnMut(&mut Vec<T>),
+) {
+    bench_answers(group, name, Vec::new(), |out| {
+        out.clear();
+        append(out);
+    });
+}
