@@ -140,13 +140,14 @@
 //! The enlarged-bounds settings ([`TreeSettings`]) trade update time against
 //! query work only: answers stay exact.
 //!
-//! The node split ([`TreeSettings::split`]) trades insert and move time
-//! against the tree's shape. Measured on the standard scene
+//! The node split ([`TreeSettings::split`]) trades insert time against the
+//! tree's shape. Measured on the standard scene
 //! (`cargo bench --bench tree -- split/`): 100,000 single inserts take
-//! 77.7 / 59.3 / 47.5 ms with [`SplitStrategy::RStar`] / `Quadratic` /
-//! `Median`, a frame's 10,000 moves 0.72 / 0.62 / 0.61 ms, and 1,000 box
-//! queries on the churned tree 0.62 / 0.69 / 0.75 ms (a bulk-loaded tree of
-//! the same boxes: 0.43 ms). The R* split is the default: queries run every
+//! 78.8 / 62.1 / 49.2 ms with [`SplitStrategy::RStar`] / `Quadratic` /
+//! `Median`, a frame's 10,000 moves 0.62 / 0.64 / 0.59 ms (level within
+//! the noise), and 1,000 box queries on the churned tree 0.51 / 0.55 /
+//! 0.58 ms (a bulk-loaded tree of the same boxes: 0.38 ms). The R* split is
+//! the default: queries run every
 //! frame, and it leaves the best tree.
 //!
 //! ## Layout
