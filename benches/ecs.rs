@@ -65,6 +65,8 @@ use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 #[allow(dead_code)]
 mod town;
 
+mod common;
+
 use town::{Barrel, Enemy, Town};
 
 /// The example's seed.
@@ -743,16 +745,9 @@ fn report_phases(_c: &mut Criterion) {
     );
 }
 
-fn config() -> Criterion {
-    Criterion::default()
-        .sample_size(20)
-        .warm_up_time(Duration::from_secs(2))
-        .measurement_time(Duration::from_secs(8))
-}
-
 criterion_group! {
     name = benches;
-    config = config();
+    config = common::config(Duration::from_secs(2), Duration::from_secs(8));
     targets = bench_frame, report_phases
 }
 criterion_main!(benches);

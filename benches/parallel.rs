@@ -220,16 +220,9 @@ fn bench_all(cr: &mut Criterion) {
     bench_joins(cr, &trees);
 }
 
-fn config() -> Criterion {
-    Criterion::default()
-        .sample_size(20)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2))
-}
-
 criterion_group! {
     name = benches;
-    config = config();
+    config = common::config(Duration::from_millis(500), Duration::from_secs(2));
     targets = bench_all
 }
 criterion_main!(benches);

@@ -1247,17 +1247,9 @@ fn bench_all(cr: &mut Criterion) {
     bench_self_join(cr, &contenders);
 }
 
-fn config() -> Criterion {
-    // Modest: the whole bench should finish in a few minutes on two cores.
-    Criterion::default()
-        .sample_size(20)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2))
-}
-
 criterion_group! {
     name = benches;
-    config = config();
+    config = common::config(Duration::from_millis(500), Duration::from_secs(2));
     targets = bench_all
 }
 criterion_main!(benches);

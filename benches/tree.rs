@@ -35,6 +35,8 @@ use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhWorkspace};
 use rstar::AABB as RstarEnvelope;
 use rstar::primitives::{GeomWithData, Rectangle};
 
+mod common;
+
 /// The scene's seed; every contender sees the same boxes and frames.
 const SEED: u64 = 0x5EED_2024;
 /// Frames of churn applied to the tree queried as "bevy_rtree_churned".
@@ -882,16 +884,9 @@ fn bench_splits(c: &mut Criterion) {
     group.finish();
 }
 
-fn config() -> Criterion {
-    Criterion::default()
-        .sample_size(20)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3))
-}
-
 criterion_group! {
     name = benches;
-    config = config();
+    config = common::config(Duration::from_secs(1), Duration::from_secs(3));
     targets = bench_build, bench_moves, bench_queries, bench_splits
 }
 criterion_main!(benches);

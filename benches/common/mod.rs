@@ -1,9 +1,21 @@
-//! What the benches share: the loop that times one contender of a group.
+//! What the benches share: the criterion settings and the loop that times
+//! one contender of a group.
+#![allow(dead_code, reason = "each bench uses the helpers it needs")]
 
 use std::hint::black_box;
+use std::time::Duration;
 
-use criterion::BenchmarkGroup;
 use criterion::measurement::WallTime;
+use criterion::{BenchmarkGroup, Criterion};
+
+/// Criterion with 20 samples after `warm_up`, over `measurement`: modest,
+/// so that each bench finishes in a few minutes on two cores.
+pub fn config(warm_up: Duration, measurement: Duration) -> Criterion {
+    Criterion::default()
+        .sample_size(20)
+        .warm_up_time(warm_up)
+        .measurement_time(measurement)
+}
 
 /// Times `answer`, one query per iteration, writing its answer into `out`.
 /// `out` and whatever `answer` captures (workspaces, input cycles) live
