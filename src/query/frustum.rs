@@ -198,7 +198,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 continue;
             }
             tested = true;
-            let (alive, remaining) = view.test_lanes(node, planes);
+            // A leaf's entries need their "fully inside" planes only for the
+            // exact mode's extra test; conservative culling skips computing
+            // them, which is half of every leaf's plane arithmetic.
+            let (alive, remaining) = if node.is_leaf() && view.sat.is_none() {
+                view.test_lanes::<W, false>(node, planes)
+            } else {
+                view.test_lanes::<W, true>(node, planes)
+            };
             let mut alive = alive & used;
             while alive != 0 {
                 let lane = alive.trailing_zeros() as usize;
@@ -330,9 +337,14 @@ impl PreparedView {
     }
 
     /// For the planes in `planes`: the lanes not outside any of them, and per
-    /// lane the planes it is not yet fully inside.
+    /// lane the planes it is not yet fully inside (with `INSIDE`; without,
+    /// every lane keeps all of `planes`).
     #[inline]
-    fn test_lanes<const W: usize>(&self, node: &Node<W>, planes: u8) -> (u32, [u8; W]) {
+    fn test_lanes<const W: usize, const INSIDE: bool>(
+        &self,
+        node: &Node<W>,
+        planes: u8,
+    ) -> (u32, [u8; W]) {
         let eye = self.frustum.eye();
         let mut alive = u32::MAX;
         let mut remaining = [planes; W];
@@ -367,16 +379,21 @@ impl PreparedView {
                     eye,
                     Vec3::new(px[lane], py[lane], pz[lane]),
                 );
+                outside_free |= ((far > 0.0) as u32) << lane;
+            }
+            alive &= outside_free;
+            if !INSIDE {
+                continue;
+            }
+            for lane in 0..W {
                 let near = plane_value(
                     n,
                     plane.offset,
                     eye,
                     Vec3::new(nx[lane], ny[lane], nz[lane]),
                 );
-                outside_free |= ((far > 0.0) as u32) << lane;
                 inside |= ((near > 0.0) as u32) << lane;
             }
-            alive &= outside_free;
             let mut inside_lanes = inside;
             while inside_lanes != 0 {
                 let lane = inside_lanes.trailing_zeros() as usize;
