@@ -336,24 +336,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.stats.nodes_visited += 1;
         let JoinItem { a, b, region } = item;
         let (na, nb) = (self.node(a), other.node(b));
-        // The taller side descends alone.
-        if na.level > nb.level {
-            for (child, region) in children_in_region(na, &region, test.distance) {
-                ws.join_stack.push(JoinItem {
-                    a: child,
-                    b,
-                    region,
-                });
-            }
-            return ControlFlow::Continue(());
-        }
-        if nb.level > na.level {
-            for (child, region) in children_in_region(nb, &region, test.distance) {
-                ws.join_stack.push(JoinItem {
-                    a,
-                    b: child,
-                    region,
-                });
+        // The taller side descends alone, paired with the other node as is.
+        if na.level != nb.level {
+            let a_descends = na.level > nb.level;
+            let taller = if a_descends { na } else { nb };
+            for (child, region) in children_in_region(taller, &region, test.distance) {
+                let (a, b) = if a_descends { (child, b) } else { (a, child) };
+                ws.join_stack.push(JoinItem { a, b, region });
             }
             return ControlFlow::Continue(());
         }
