@@ -97,6 +97,100 @@ proptest! {
     }
 }
 
+/// Batches whose rays start at one origin (inside a box, on its faces or
+/// in the open), as camera rays do, in runs long enough and too short to be
+/// answered from one point query, with directions beyond unit length too.
+fn shared_origin_rays() -> impl Strategy<Value = Vec<Ray>> {
+    let origin = prop_oneof![
+        common::grid_point(),
+        common::grid_box().prop_map(|b| b.min),
+        common::grid_box().prop_map(|b| (b.min + b.max) * 0.5),
+    ];
+    let dir = (-2i32..=2, -2i32..=2, -2i32..=2, 0usize..4).prop_map(|(x, y, z, scale)| {
+        Vec3::new(x as f32, y as f32, z as f32) * [1.0, 0.5, 1e-20, 1e30][scale]
+    });
+    let max_t = prop_oneof![Just(0.0), Just(3.0), Just(f32::INFINITY)];
+    (origin, prop::collection::vec((dir, max_t), 1..20)).prop_map(|(origin, rays)| {
+        rays.into_iter()
+            .map(|(dir, max_t)| Ray { origin, dir, max_t })
+            .collect()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn rays_sharing_an_origin_match_the_oracle(
+        boxes in prop::collection::vec(common::grid_box(), 0..250),
+        groups in prop::collection::vec(shared_origin_rays(), 1..4),
+    ) {
+        let rays: Vec<Ray> = groups.concat();
+        let (tree, oracle) = build::<8>(&boxes);
+        check_rays(&tree, &oracle, &rays);
+        // Inserted from the last key down, so that entries are met in
+        // about the opposite order of their keys and ties need the keys.
+        let mut tree = RTree::<u32>::new();
+        for (i, b) in boxes.iter().enumerate().rev() {
+            tree.insert(i as u32, *b).unwrap();
+        }
+        check_rays(&tree, &oracle, &rays);
+    }
+}
+
+/// A ray whose direction is far beyond unit length can hit a box that does
+/// not contain its origin at `t = 0`: leaving it, `(max - o) * inv`
+/// underflows to `-0.0`. Such a tie with smaller key must still win over the
+/// box around the origin when many rays share that origin.
+#[test]
+fn a_zero_t_hit_outside_a_shared_origin_still_wins_its_tie() {
+    let mut tree = RTree::new();
+    let mut oracle = BruteForce::default();
+    for (key, b) in [
+        (0u32, common::aabb([0.0; 3], [1.0; 3])),
+        (5, common::aabb([1.0, 0.0, 0.0], [2.0, 1.0, 1.0])),
+    ] {
+        tree.insert(key, b).unwrap();
+        oracle.insert(key, b);
+    }
+    let away = ray([1f32.next_up(), 0.5, 0.5], [3e38, 0.0, 0.0], 10.0);
+    let hits = oracle.ray_hits(&away).unwrap();
+    assert_eq!(hits.first(), Some(&RayHit { key: 0, t: 0.0 }));
+    assert_eq!(hits.len(), 2);
+    check_rays(&tree, &oracle, &[away; 8]);
+}
+
+/// Camera rays from an eye inside several stacked boxes all hit the one
+/// with the smallest key first, at `t = 0`, whatever order the tree holds
+/// them in.
+#[test]
+fn rays_from_inside_stacked_boxes_hit_the_smallest_key_at_zero() {
+    let mut tree = RTree::new();
+    let mut oracle = BruteForce::default();
+    let stacked = common::aabb([0.0; 3], [4.0; 3]);
+    for key in [9u32, 4, 7, 5] {
+        tree.insert(key, stacked).unwrap();
+        oracle.insert(key, stacked);
+    }
+    let rays: Vec<Ray> = (0..16)
+        .map(|i| {
+            let angle = i as f32 * 0.4;
+            ray([2.0; 3], [angle.cos(), angle.sin(), 0.25], 10.0)
+        })
+        .collect();
+    let mut out = RayResults::default();
+    tree.cast_rays(
+        &rays,
+        RayMode::First,
+        &mut QueryWorkspace::default(),
+        &mut out,
+    );
+    for i in 0..rays.len() {
+        assert_eq!(out.first(i), Ok(Some(RayHit { key: 4, t: 0.0 })));
+    }
+    check_rays(&tree, &oracle, &rays);
+}
+
 /// The unit box as key 0 among 1,000 distractors away from it.
 fn unit_world(extra: &[Aabb]) -> (RTree<u32>, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(11);

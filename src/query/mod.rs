@@ -14,6 +14,7 @@ mod overlap;
 #[cfg(feature = "parallel")]
 mod parallel;
 mod ray;
+mod ray_origin;
 mod sphere;
 mod workspace;
 

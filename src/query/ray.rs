@@ -8,6 +8,8 @@
 //! child's run, and the recursion continues with that run only. Once a run
 //! is smaller than [`MIN_RAYS_TO_BATCH`], its rays go on one at a time, in
 //! run order, as single rays do (see there for why and the measurements).
+//! Before the walk, rays that share an origin inside an entry are answered
+//! from one point query (`ray_origin`).
 
 use std::ops::{ControlFlow, Range};
 
@@ -110,23 +112,25 @@ impl<K: Copy> RayResults<K> {
 /// Per-ray state of a batch, kept in the workspace between frames.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct RayBatchScratch {
-    tests: Vec<RayTest>,
+    pub(super) tests: Vec<RayTest>,
     /// Current limit per ray: shrinks to the best `t` (first hit) or drops
     /// below zero once the ray is done (any hit).
-    limits: Vec<f32>,
+    pub(super) limits: Vec<f32>,
     /// Best `(t, proxy)` per ray in first-hit mode.
-    best: Vec<(f32, u32)>,
+    pub(super) best: Vec<(f32, u32)>,
     /// Every `(ray, t, proxy)` hit in all-hits mode.
     all: Vec<(u32, f32, u32)>,
-    found: Vec<bool>,
+    pub(super) found: Vec<bool>,
     /// Indices of the valid rays: the batch the root is visited with.
-    active: Vec<u32>,
+    pub(super) active: Vec<u32>,
     /// Per depth: the lane mask of each ray the node at that depth was
     /// visited with (`masks[depth * rays + i]` for its `i`-th ray).
     masks: Vec<u32>,
     /// Per depth: the rays of each child of the node at that depth, one run
     /// per lane, the batches the children are visited with.
     buckets: Vec<Vec<u32>>,
+    /// The entries that contain a shared origin, with their boxes.
+    pub(super) origin_entries: Vec<(u32, crate::geometry::Aabb)>,
 }
 
 /// Below this many rays, a run of a batch goes on one ray at a time.
@@ -357,6 +361,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// and writes slot `i` of `out` for ray `i`. An invalid ray gets its own error; the other
     /// slots are unaffected. Answers equal those of the single-ray calls.
     ///
+    /// Keep rays that start at one point next to each other (a camera's
+    /// rays from its eye): in first-hit and any-hit modes, eight or more
+    /// consecutive rays with the same origin share one point query there,
+    /// and if the origin lies inside an entry, that answers them without a
+    /// walk (a hit at `t = 0` comes first; ties go to the smallest key).
+    ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayMode, RayResults, SpatialError};
     /// use glam::Vec3;
@@ -420,8 +430,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if s.buckets.len() < height {
             s.buckets.resize_with(height, Vec::new);
         }
-        let active = std::mem::take(&mut s.active);
-        // A batch of only invalid rays has nothing to traverse with.
+        self.answer_shared_origins(mode, ws);
+        let active = std::mem::take(&mut ws.rays.active);
+        // A batch of only invalid or already answered rays has nothing to
+        // traverse with.
         if !active.is_empty() {
             self.batch_node(self.root(), &active, 0, mode, ws);
         }
