@@ -28,6 +28,11 @@
 //!   first hit; iterations cycle through `COHERENT_VIEWS` yaws. The eye sits
 //!   inside scene boxes, so every first hit is at `t = 0`: the group measures
 //!   how fast a traversal settles a tie at the origin (S5 breaks it by key).
+//!   `cast_rays` answers such a batch from one point query at the shared
+//!   origin, so this group mostly times that shortcut.
+//! - `queries/rays_coherent_clear_eye`: the same ray grids from the nearest
+//!   point above the eye that no box contains, so that every ray walks the
+//!   tree: the coherent traversal itself.
 //! - `queries/cross_join`: enemies (0..10k) x barrels (10k..15k) within 5 m,
 //!   Euclidean (S8). bevy_rtree joins two trees maintained from frame to
 //!   frame. `parry3d_with_build` builds its two `Bvh`s (binned) every
@@ -814,7 +819,17 @@ struct Contenders {
     soa: SoaBoxes,
     frustums: Vec<Frustum>,
     coherent: Vec<Vec<Ray>>,
+    /// `coherent` from the lowest point above the eye inside no box.
+    coherent_clear_eye: Vec<Vec<Ray>>,
     incoherent: Vec<Vec<Ray>>,
+}
+
+/// The lowest point above the eye, in steps of 0.5 m, that no box contains.
+fn clear_eye(boxes: &[Aabb]) -> Vec3 {
+    (0..)
+        .map(|step| TownScene::eye() + Vec3::Y * (0.5 * step as f32))
+        .find(|&eye| !boxes.iter().any(|b| b.contains_point(eye)))
+        .expect("the boxes are finite")
 }
 
 fn n() -> usize {
@@ -842,6 +857,7 @@ fn setup() -> Contenders {
         boxes: Vec::new(),
         frustums: Vec::new(),
         coherent: Vec::new(),
+        coherent_clear_eye: Vec::new(),
         incoherent: Vec::new(),
     };
     let views_every = WARM_FRAMES as usize / COHERENT_VIEWS;
@@ -864,6 +880,12 @@ fn setup() -> Contenders {
     }
     c.boxes = scene.boxes().to_vec();
     c.soa = SoaBoxes::new(&c.boxes);
+    let eye = clear_eye(&c.boxes);
+    c.coherent_clear_eye = c
+        .coherent
+        .iter()
+        .map(|rays| rays.iter().map(|&ray| Ray { origin: eye, ..ray }).collect())
+        .collect();
     // From a copy: drawing rays advances the scene's generator.
     let mut rays_from = scene.clone();
     c.incoherent = (0..INCOHERENT_BATCHES)
@@ -935,7 +957,12 @@ fn check(c: &Contenders) {
     );
 
     // Rays.
-    for (kind, batches) in [("incoherent", &c.incoherent), ("coherent", &c.coherent)] {
+    let kinds = [
+        ("incoherent", &c.incoherent),
+        ("coherent", &c.coherent),
+        ("coherent, clear eye", &c.coherent_clear_eye),
+    ];
+    for (kind, batches) in kinds {
         let (mut hits, mut at_zero, mut parry_ties) = (0usize, 0usize, 0usize);
         let mut single_ws = QueryWorkspace::default();
         let mut results = RayResults::default();
@@ -980,6 +1007,10 @@ fn check(c: &Contenders) {
     eprintln!(
         "the eye is inside {} boxes: every coherent ray starts inside them, so its first hit is at t = 0 and S5 ties are broken by key among them",
         oracle.containing_point(TownScene::eye()).len()
+    );
+    eprintln!(
+        "the clear eye of queries/rays_coherent_clear_eye is {:?}, inside no box",
+        clear_eye(boxes)
     );
 
     // Cross join.
@@ -1242,6 +1273,12 @@ fn bench_all(cr: &mut Criterion) {
         &contenders,
         "queries/rays_coherent",
         &contenders.coherent,
+    );
+    bench_rays(
+        cr,
+        &contenders,
+        "queries/rays_coherent_clear_eye",
+        &contenders.coherent_clear_eye,
     );
     bench_cross_join(cr, &contenders);
     bench_self_join(cr, &contenders);
