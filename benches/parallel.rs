@@ -9,8 +9,10 @@
 //! every timed input and must be identical.
 //!
 //! Groups (one iteration = one operation of one frame):
-//! - `parallel/rays_incoherent`, `parallel/rays_coherent`: 1,000 rays, first
-//!   hit, as in the queries bench;
+//! - `parallel/rays_incoherent`, `parallel/rays_coherent`,
+//!   `parallel/rays_coherent_clear_eye`: 1,000 rays, first hit, as in the
+//!   queries bench (from the standard eye, inside boxes, one point query
+//!   answers every coherent ray; from the clear eye every ray walks);
 //! - `parallel/frustum`: the standard camera, conservative;
 //! - `parallel/frustum_4_views`: the camera and three more yaws in one call
 //!   (a frame's cameras and shadow views);
@@ -42,6 +44,7 @@ struct Inputs {
     frustums: Vec<Frustum>,
     incoherent: Vec<Ray>,
     coherent: Vec<Ray>,
+    coherent_clear_eye: Vec<Ray>,
 }
 
 fn maintained(scene: &TownScene, range: std::ops::Range<usize>) -> (RTree<u32>, Vec<ProxyId>) {
@@ -81,6 +84,7 @@ fn setup() -> (Trees, Inputs) {
         })
         .collect();
     let coherent = scene.coherent_rays();
+    let coherent_clear_eye = scene.coherent_rays_from(scene.clear_eye());
     let incoherent = scene.incoherent_rays(1_000);
     let [(_, (all, _)), (_, (enemies, _)), (_, (barrels, _))] = trees;
     (
@@ -93,6 +97,7 @@ fn setup() -> (Trees, Inputs) {
             frustums,
             incoherent,
             coherent,
+            coherent_clear_eye,
         },
     )
 }
@@ -104,7 +109,11 @@ fn same_rays(a: &RayResults<u32>, b: &RayResults<u32>) -> bool {
 
 fn check(trees: &Trees, inputs: &Inputs, pws: &mut ParallelWorkspace<u32>) {
     let mut ws = QueryWorkspace::default();
-    for rays in [&inputs.incoherent, &inputs.coherent] {
+    for rays in [
+        &inputs.incoherent,
+        &inputs.coherent,
+        &inputs.coherent_clear_eye,
+    ] {
         let (mut single, mut parallel) = (RayResults::default(), RayResults::default());
         trees
             .all
@@ -215,6 +224,8 @@ fn bench_all(cr: &mut Criterion) {
     check(&trees, &inputs, &mut ParallelWorkspace::default());
     bench_rays(cr, &trees, "parallel/rays_incoherent", &inputs.incoherent);
     bench_rays(cr, &trees, "parallel/rays_coherent", &inputs.coherent);
+    let clear = &inputs.coherent_clear_eye;
+    bench_rays(cr, &trees, "parallel/rays_coherent_clear_eye", clear);
     bench_frustum(cr, &trees, "parallel/frustum", &inputs.frustums[..1]);
     bench_frustum(cr, &trees, "parallel/frustum_4_views", &inputs.frustums);
     bench_joins(cr, &trees);

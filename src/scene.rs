@@ -267,6 +267,26 @@ impl TownScene {
             .collect()
     }
 
+    /// The lowest point above [`TownScene::eye`], in steps of 0.5 m, that no
+    /// entity's box contains now: an eye whose rays all have to walk the
+    /// tree (from the standard eye, inside boxes, every first hit is at
+    /// `t = 0`).
+    pub fn clear_eye(&self) -> Vec3 {
+        (0..)
+            .map(|step| Self::eye() + Vec3::Y * (0.5 * step as f32))
+            .find(|&eye| !self.boxes.iter().any(|b| b.contains_point(eye)))
+            .expect("finitely many finite boxes leave a point above them clear")
+    }
+
+    /// [`TownScene::coherent_rays`] from `eye` instead of the standard eye.
+    pub fn coherent_rays_from(&self, eye: Vec3) -> Vec<Ray> {
+        let mut rays = self.coherent_rays();
+        for ray in &mut rays {
+            ray.origin = eye;
+        }
+        rays
+    }
+
     /// 1,000 coherent rays from the eye through a 40 x 25 pixel grid of the
     /// current camera, length 500 m.
     pub fn coherent_rays(&self) -> Vec<Ray> {
@@ -287,5 +307,22 @@ impl TownScene {
             }
         }
         rays
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_clear_eye_is_above_the_eye_and_inside_no_box() {
+        let scene = TownScene::new(100_000, 3);
+        let eye = scene.clear_eye();
+        assert_eq!((eye.x, eye.z), (TownScene::eye().x, TownScene::eye().z));
+        assert!(eye.y >= TownScene::eye().y);
+        assert!(scene.boxes().iter().all(|b| !b.contains_point(eye)));
+        let rays = scene.coherent_rays_from(eye);
+        assert_eq!(rays.len(), scene.coherent_rays().len());
+        assert!(rays.iter().all(|r| r.origin == eye));
     }
 }
