@@ -366,6 +366,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// consecutive rays with the same origin share one point query there,
     /// and if the origin lies inside an entry, that answers them without a
     /// walk (a hit at `t = 0` comes first; ties go to the smallest key).
+    /// Rays with a direction component beyond unit length still walk,
+    /// limited to `t = 0`, to meet ties outside the origin's boxes.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayMode, RayResults, SpatialError};

@@ -1,20 +1,24 @@
 //! Rays of a batch that share an origin: one question for all of them.
 //!
-//! A hit at `t = 0` comes before every other hit (S5), and which entries a
-//! ray hits at `t = 0` does not depend on its direction: they are the
-//! entries whose closed box contains the origin. So when consecutive rays of
-//! a batch start at the same point (camera rays from an eye, a shotgun's
-//! pellets), one point query at that origin can answer all of them in
-//! first-hit and any-hit modes, if the origin lies inside an entry, before
-//! any of them walks the tree.
+//! A hit at `t = 0` comes before every other hit (S5), and as long as no
+//! direction component exceeds unit length, which entries a ray hits at
+//! `t = 0` does not depend on its direction: they are the entries whose
+//! closed box contains the origin. So when consecutive rays of a batch
+//! start at the same point (camera rays from an eye, a shotgun's pellets),
+//! one point query at that origin can answer all of them in first-hit and
+//! any-hit modes, if the origin lies inside an entry, before any of them
+//! walks the tree.
 //!
-//! Exactness, by the S4 steps: for an entry whose box contains the origin,
-//! every `near - o` is `<= 0` and every `far - o` has the sign of `inv`, so
-//! `lo` stays `0` and `hi >= 0`: a hit at `t = 0`. For an entry that does
-//! not contain it, some `far - o` is nonzero with the sign opposite to
-//! `inv`, so `t1 < 0` and the ray misses at `t = 0`, unless the product
-//! underflows to `-0.0`, which needs `|inv| < 1`. So the point query finds
-//! every `t = 0` hit of a ray whose direction components are all within
+//! Exactness, by the S4 steps. For an entry whose box contains the origin,
+//! every `near - o` is `<= 0` and every `far - o` is zero or has the sign of
+//! `inv`, so `lo` stays `0` and `hi >= 0`: a hit at `t = 0`. For an entry
+//! that does not contain it, on some axis the origin lies beyond the box:
+//! with `d == 0` on that axis the ray misses; otherwise either `near - o`
+//! has the sign of `inv` (then `t0 > 0`, a later entry) or `far - o` has the
+//! opposite sign (then `t1 < 0`, a miss). The difference of two distinct
+//! floats is never zero, so both products keep their sign unless they
+//! underflow to zero, which needs `|inv| < 1`. So the point query finds
+//! every `t = 0` hit of a ray whose direction components all lie within
 //! `[-1, 1]`; any other ray keeps its `t = 0` hit as its best so far and
 //! still walks the tree, limited to `t = 0`, to meet the rest. Each
 //! candidate is still decided by the S4 predicate itself.
