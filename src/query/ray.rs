@@ -587,6 +587,16 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.ray_stack = stack;
     }
 
+    /// Whether hit `(t, proxy)` comes before `best` (S5: smaller `t`, then
+    /// smaller key; a `best` of `NIL` is no hit yet).
+    #[inline]
+    pub(super) fn is_better_hit(&self, (t, proxy): (f32, u32), best: (f32, u32)) -> bool {
+        let (best_t, best_proxy) = best;
+        best_proxy == NIL
+            || t < best_t
+            || (t == best_t && self.key_of(proxy) < self.key_of(best_proxy))
+    }
+
     /// Ray `r` against the entries of a leaf: records its hits by `mode`
     /// and shrinks its limit (first hit) or ends it (any hit).
     #[inline]
@@ -603,11 +613,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             s.found[r] = true;
             match mode {
                 RayMode::First => {
-                    let (best_t, best_proxy) = s.best[r];
-                    let better = best_proxy == NIL
-                        || t < best_t
-                        || (t == best_t && self.key_of(proxy) < self.key_of(best_proxy));
-                    if better {
+                    if self.is_better_hit((t, proxy), s.best[r]) {
                         s.best[r] = (t, proxy);
                         s.limits[r] = t;
                     }

@@ -31,6 +31,7 @@ use super::ray::RayMode;
 use crate::geometry::Aabb;
 use crate::geometry::predicates::{RayTest, ray_box_entry};
 use crate::tree::RTree;
+use crate::tree::node::NIL;
 
 /// The fewest consecutive rays with one origin that get a point query.
 ///
@@ -112,25 +113,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ) -> bool {
         let s = &mut ws.rays;
         let (test, limit) = (s.tests[r], s.limits[r]);
-        let mut best: Option<(f32, u32)> = None;
+        let mut best = (f32::INFINITY, NIL);
         for (proxy, aabb) in inside {
-            let Some(t) = ray_box_entry(&test, limit, aabb.min.to_array(), aabb.max.to_array())
-            else {
-                continue;
-            };
-            let better = match best {
-                None => true,
-                Some((best_t, best_proxy)) => {
-                    t < best_t || (t == best_t && self.key_of(*proxy) < self.key_of(best_proxy))
-                }
-            };
-            if better {
-                best = Some((t, *proxy));
+            let (min, max) = (aabb.min.to_array(), aabb.max.to_array());
+            if let Some(t) = ray_box_entry(&test, limit, min, max)
+                && self.is_better_hit((t, *proxy), best)
+            {
+                best = (t, *proxy);
             }
         }
-        let Some((t, proxy)) = best else {
+        let (t, proxy) = best;
+        if proxy == NIL {
             return false;
-        };
+        }
         s.found[r] = true;
         match mode {
             RayMode::Any => {
