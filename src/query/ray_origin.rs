@@ -76,18 +76,23 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     .iter()
                     .take_while(|&&r| same_origin(&tests[r as usize], first))
                     .count();
-            inside.clear();
-            if end - start >= MIN_RAYS_SHARING_AN_ORIGIN {
-                let origin = Vec3::from_array(first.origin);
-                let point = Aabb {
-                    min: origin,
-                    max: origin,
-                };
-                self.visit_overlapping_proxies(&point, ws, |proxy, aabb| {
-                    inside.push((proxy, *aabb));
-                    ControlFlow::Continue(())
-                });
+            if end - start < MIN_RAYS_SHARING_AN_ORIGIN {
+                // Too few to share a query: every ray of the group walks.
+                active.copy_within(start..end, kept);
+                kept += end - start;
+                start = end;
+                continue;
             }
+            let origin = Vec3::from_array(first.origin);
+            let point = Aabb {
+                min: origin,
+                max: origin,
+            };
+            inside.clear();
+            self.visit_overlapping_proxies(&point, ws, |proxy, aabb| {
+                inside.push((proxy, *aabb));
+                ControlFlow::Continue(())
+            });
             for i in start..end {
                 let r = active[i];
                 if !self.answer_at_origin(r as usize, mode, &inside, ws) {
