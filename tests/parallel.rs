@@ -219,6 +219,51 @@ fn small_batches_run_on_the_calling_thread() {
 }
 
 #[test]
+fn rays_answered_at_their_shared_origin_are_not_split() {
+    let (scene, mut tree, _) = common::town_tree(5_000, 11);
+    let eye = TownScene::eye();
+    // An entry around the eye: every camera ray has a hit at t = 0.
+    let room = Aabb::new(eye - Vec3::splat(2.0), eye + Vec3::splat(2.0)).unwrap();
+    tree.insert(u32::MAX, room).unwrap();
+    let inside = scene.coherent_rays_from(eye);
+    // Above the world's ceiling (100 m), in no entry; the rays look down.
+    let above = eye + Vec3::new(0.0, 150.0, 0.0);
+    let clear = scene.coherent_rays_from(above);
+    assert!(!tree.containing_point(eye).is_empty());
+    assert!(tree.containing_point(above).is_empty());
+    // Longer than unit directions may hit entries that do not hold the
+    // origin at t = 0, so these rays still walk.
+    let stretched: Vec<Ray> = inside
+        .iter()
+        .map(|ray| Ray::new(ray.origin, ray.dir * 4.0, ray.max_t).unwrap())
+        .collect();
+    let mixed: Vec<Ray> = inside.iter().chain(&clear).copied().collect();
+
+    let mut pws = ParallelWorkspace::default();
+    let mut ws = QueryWorkspace::default();
+    for (rays, splits) in [
+        (&inside, false),
+        (&clear, true),
+        (&stretched, true),
+        (&mixed, true),
+    ] {
+        for mode in RAY_MODES {
+            let mut serial = RayResults::default();
+            tree.cast_rays(rays, mode, &mut ws, &mut serial);
+            let mut parallel = RayResults::default();
+            tree.par_cast_rays(rays, mode, &mut pws, &mut parallel);
+            assert_same_rays(&serial, &parallel);
+            // Every hit is counted for all-hits, so nothing is answered early.
+            if splits || matches!(mode, RayMode::All { .. }) {
+                expect_split(&pws);
+            } else {
+                assert_eq!(pws.last_split(), 1, "{mode:?}");
+            }
+        }
+    }
+}
+
+#[test]
 fn bad_input_fails_in_its_own_place() {
     let (mut scene, tree, _) = common::town_tree(5_000, 5);
     let mut pws = split_everything();

@@ -139,7 +139,7 @@ impl<K> Default for ParallelWorkspace<K> {
 
 impl<K> ParallelWorkspace<K> {
     /// A batch is split only into runs of at least this many rays (default
-    /// 64; at least 1).
+    /// 64; at least 1), not counting rays answered at a shared origin.
     pub fn with_min_rays_per_task(mut self, rays: usize) -> Self {
         self.min_rays_per_task = rays.max(1);
         self
@@ -304,6 +304,10 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     /// consecutive rays (keep coherent rays next to each other), a few per
     /// thread, each cast as its own batch by whichever task claims it next.
     /// `out` is identical to the single-threaded call's.
+    ///
+    /// Rays that need no walk because they share an origin inside an entry
+    /// (see [`RTree::cast_rays`]) do not count towards splitting: camera
+    /// rays from an eye inside a box are answered on the calling thread.
     pub fn par_cast_rays(
         &self,
         rays: &[Ray],
@@ -311,7 +315,16 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         pws: &mut ParallelWorkspace<K>,
         out: &mut RayResults<K>,
     ) {
-        let count = task_count(rays.len(), pws.min_rays_per_task);
+        // Rays that one point query at their shared origin answers (camera
+        // rays from an eye inside an entry) leave no walk to share: count
+        // only the rest, so such a batch stays on the calling thread
+        // instead of paying the split and a point query per run.
+        let mut count = task_count(rays.len(), pws.min_rays_per_task);
+        if count > 1 {
+            let ws = &mut pws.tasks(1)[0].ws;
+            let walking = rays.len() - self.rays_answered_at_shared_origins(rays, mode, ws);
+            count = task_count(walking, pws.min_rays_per_task);
+        }
         if count == 1 {
             self.cast_rays(rays, mode, &mut pws.tasks(1)[0].ws, out);
             return;

@@ -28,8 +28,8 @@ use std::ops::ControlFlow;
 
 use super::QueryWorkspace;
 use super::ray::RayMode;
-use crate::geometry::Aabb;
 use crate::geometry::predicates::{RayTest, ray_box_entry};
+use crate::geometry::{Aabb, Ray};
 use crate::tree::RTree;
 use crate::tree::node::NIL;
 
@@ -45,7 +45,14 @@ const MIN_RAYS_SHARING_AN_ORIGIN: usize = 8;
 /// (all direction components within `[-1, 1]`, see the module docs).
 #[inline]
 fn zero_hits_contain_origin(ray: &RayTest) -> bool {
-    ray.dir.iter().all(|d| d.abs() <= 1.0)
+    !zero_hits_may_lie_outside(Vec3::from_array(ray.dir))
+}
+
+/// Whether a ray along `dir` may hit an entry at `t = 0` that does not
+/// contain its origin (a component beyond unit length, see the module docs).
+#[inline]
+fn zero_hits_may_lie_outside(dir: Vec3) -> bool {
+    dir.abs().max_element() > 1.0
 }
 
 /// Bitwise equal origins (so `-0.0` and `0.0` start different groups,
@@ -105,6 +112,52 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         active.truncate(kept);
         ws.rays.active = active;
         ws.rays.origin_entries = inside;
+    }
+
+    /// How many rays of `rays` [`RTree::answer_shared_origins`] would answer
+    /// without a walk, at the cost of one point query per group of
+    /// consecutive rays with one origin: those of a group of at least
+    /// [`MIN_RAYS_SHARING_AN_ORIGIN`] whose origin lies inside an entry,
+    /// that have no direction component beyond unit length (or are invalid,
+    /// which needs no walk either).
+    ///
+    /// An estimate for deciding whether a batch is worth splitting across
+    /// threads, never used for an answer (it groups invalid rays with their
+    /// neighbours, which the batch itself skips).
+    pub(super) fn rays_answered_at_shared_origins(
+        &self,
+        rays: &[Ray],
+        mode: RayMode,
+        ws: &mut QueryWorkspace,
+    ) -> usize {
+        if let RayMode::All { .. } = mode {
+            return 0;
+        }
+        let origin_bits = |ray: &Ray| ray.origin.to_array().map(f32::to_bits);
+        let mut answered = 0;
+        for group in rays.chunk_by(|a, b| origin_bits(a) == origin_bits(b)) {
+            if group.len() < MIN_RAYS_SHARING_AN_ORIGIN {
+                continue;
+            }
+            let origin = group[0].origin;
+            let point = Aabb {
+                min: origin,
+                max: origin,
+            };
+            let mut inside = false;
+            self.visit_overlapping_proxies(&point, ws, |_, _| {
+                inside = true;
+                ControlFlow::Break(())
+            });
+            if inside {
+                // Invalid rays are answered by their error: no walk either.
+                answered += group
+                    .iter()
+                    .filter(|ray| !zero_hits_may_lie_outside(ray.dir))
+                    .count();
+            }
+        }
+        answered
     }
 
     /// Records ray `r`'s `t = 0` hits among `inside` (the entries that
