@@ -36,6 +36,7 @@ fn split_everything() -> ParallelWorkspace<u32> {
     ParallelWorkspace::default()
         .with_min_rays_per_task(1)
         .with_min_entries_to_split(0)
+        .with_min_view_entries_to_split(0)
 }
 
 fn build(boxes: &[Aabb], first_key: u32) -> (RTree<u32, 4>, BruteForce<u32>) {
@@ -167,19 +168,27 @@ fn the_standard_scene_splits_and_answers_the_same() {
         assert_same_rays(&serial, &parallel);
     }
 
-    let views: Vec<Frustum> = (0..3)
+    // Ten views of 20,000 entries reach the default 200,000 view-entries
+    // and span two passes of eight; one view stays on the calling thread.
+    let views: Vec<Frustum> = (0..10)
         .map(|i| {
             let rotation = Quat::from_rotation_y(i as f32 * 2.0);
             Frustum::perspective(TownScene::eye(), rotation, 1.0, 1.8, 0.1, 500.0).unwrap()
         })
         .collect();
-    let mut serial = vec![Vec::new(); views.len()];
-    tree.visible_into(&views, CullMode::Conservative, &mut ws, &mut serial);
-    let mut parallel = vec![Vec::new(); views.len()];
-    tree.par_visible_into(&views, CullMode::Conservative, &mut pws, &mut parallel);
-    expect_split(&pws);
-    assert_eq!(serial, parallel);
-    assert!(parallel.iter().all(|keys| !keys.is_empty()));
+    for (views, splits) in [(&views[..], true), (&views[..1], false)] {
+        let mut serial = vec![Vec::new(); views.len()];
+        tree.visible_into(views, CullMode::Conservative, &mut ws, &mut serial);
+        let mut parallel = vec![Vec::new(); views.len()];
+        tree.par_visible_into(views, CullMode::Conservative, &mut pws, &mut parallel);
+        if splits {
+            expect_split(&pws);
+        } else {
+            assert_eq!(pws.last_split(), 1);
+        }
+        assert_eq!(serial, parallel);
+        assert!(parallel.iter().all(|keys| !keys.is_empty()));
+    }
 
     let mut serial = Vec::new();
     tree.self_join_into(1.0, JoinMode::Euclidean, &mut ws, &mut serial)
