@@ -28,8 +28,8 @@ use std::ops::ControlFlow;
 
 use super::QueryWorkspace;
 use super::ray::RayMode;
+use crate::geometry::Aabb;
 use crate::geometry::predicates::{RayTest, ray_box_entry};
-use crate::geometry::{Aabb, Ray};
 use crate::tree::RTree;
 use crate::tree::node::NIL;
 
@@ -58,8 +58,8 @@ fn zero_hits_may_lie_outside(dir: Vec3) -> bool {
 /// Bitwise equal origins (so `-0.0` and `0.0` start different groups,
 /// which costs at most a query and never an answer).
 #[inline]
-fn same_origin(a: &RayTest, b: &RayTest) -> bool {
-    a.origin.map(f32::to_bits) == b.origin.map(f32::to_bits)
+fn same_origin(a: [f32; 3], b: [f32; 3]) -> bool {
+    a.map(f32::to_bits) == b.map(f32::to_bits)
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
@@ -81,7 +81,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let end = start
                 + active[start..]
                     .iter()
-                    .take_while(|&&r| same_origin(&tests[r as usize], first))
+                    .take_while(|&&r| same_origin(tests[r as usize].origin, first.origin))
                     .count();
             if end - start < MIN_RAYS_SHARING_AN_ORIGIN {
                 // Too few to share a query: every ray of the group walks.
@@ -124,18 +124,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// An estimate for deciding whether a batch is worth splitting across
     /// threads, never used for an answer (it groups invalid rays with their
     /// neighbours, which the batch itself skips).
+    #[cfg(feature = "parallel")]
     pub(super) fn rays_answered_at_shared_origins(
         &self,
-        rays: &[Ray],
+        rays: &[crate::geometry::Ray],
         mode: RayMode,
         ws: &mut QueryWorkspace,
     ) -> usize {
         if let RayMode::All { .. } = mode {
             return 0;
         }
-        let origin_bits = |ray: &Ray| ray.origin.to_array().map(f32::to_bits);
         let mut answered = 0;
-        for group in rays.chunk_by(|a, b| origin_bits(a) == origin_bits(b)) {
+        for group in rays.chunk_by(|a, b| same_origin(a.origin.to_array(), b.origin.to_array())) {
             if group.len() < MIN_RAYS_SHARING_AN_ORIGIN {
                 continue;
             }
