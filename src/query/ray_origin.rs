@@ -144,12 +144,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 min: origin,
                 max: origin,
             };
-            let mut inside = false;
-            self.visit_overlapping_proxies(&point, ws, |_, _| {
-                inside = true;
-                ControlFlow::Break(())
-            });
-            if inside {
+            if self.any_overlapping(&point, ws) {
                 // Invalid rays are answered by their error: no walk either.
                 answered += group
                     .iter()
