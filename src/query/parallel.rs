@@ -161,7 +161,7 @@ impl<K> ParallelWorkspace<K> {
     /// One view of a tree that size is culled in about 50 µs on the 2-core
     /// machine the benches ran on, less than a pool thread takes to start
     /// (70 to 100 µs): split, it took 10 to 20 % longer; two views broke
-    /// even or gained up to 16 %, four gained 32 to 53 %.
+    /// even or gained up to 16 %, four gained 28 to 53 %.
     pub fn with_min_view_entries_to_split(mut self, view_entries: usize) -> Self {
         self.min_view_entries_to_split = view_entries;
         self
@@ -330,10 +330,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         pws: &mut ParallelWorkspace<K>,
         out: &mut RayResults<K>,
     ) {
-        // Rays that one point query at their shared origin answers (camera
-        // rays from an eye inside an entry) leave no walk to share: count
-        // only the rest, so such a batch stays on the calling thread
-        // instead of paying the split and a point query per run.
+        // Split runs would each ask the shared-origin query again, for
+        // rays that leave no walk to share.
         let mut count = task_count(rays.len(), pws.min_rays_per_task);
         if count > 1 {
             let ws = &mut pws.tasks(1)[0].ws;
