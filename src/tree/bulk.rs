@@ -155,20 +155,7 @@ fn halve(
     if count <= 1 {
         return;
     }
-    let (mut lo, mut hi) = (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY);
-    for entry in entries.iter() {
-        let centre = entry.bound.min + entry.bound.max;
-        lo = lo.min(centre);
-        hi = hi.max(centre);
-    }
-    let spread = hi - lo;
-    let axis = if spread.x >= spread.y && spread.x >= spread.z {
-        0
-    } else if spread.y >= spread.z {
-        1
-    } else {
-        2
-    };
+    let axis = widest_centre_axis(entries);
     let left = count / 2;
     let start = group_range(total_entries, total_groups, first).start;
     let cut = group_range(total_entries, total_groups, first + left).start - start;
@@ -186,8 +173,27 @@ fn halve(
     );
 }
 
+/// The axis along which the entries' centres spread widest (ties go to the
+/// lower axis).
+pub(super) fn widest_centre_axis(entries: &[Entry]) -> usize {
+    let (mut lo, mut hi) = (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY);
+    for entry in entries {
+        let centre = entry.bound.min + entry.bound.max;
+        lo = lo.min(centre);
+        hi = hi.max(centre);
+    }
+    let spread = hi - lo;
+    if spread.x >= spread.y && spread.x >= spread.z {
+        0
+    } else if spread.y >= spread.z {
+        1
+    } else {
+        2
+    }
+}
+
 /// Twice the centre along `axis` (halving would not change the order).
 #[inline]
-fn centre_key(aabb: &Aabb, axis: usize) -> f32 {
+pub(super) fn centre_key(aabb: &Aabb, axis: usize) -> f32 {
     aabb.min[axis] + aabb.max[axis]
 }

@@ -1,12 +1,14 @@
 //! Node splits: when a node overflows, its `W + 1` entries are divided in
-//! two. Three strategies, chosen by [`TreeSettings::split`]; all heuristics
-//! are computed in `f64` (SEMANTICS S0) from the entries' structural bounds.
+//! two. Three strategies, chosen by [`TreeSettings::split`], all from the
+//! entries' structural bounds: R* and quadratic compute their surface and
+//! overlap heuristics in `f64`; the median split is the bulk loader's cut.
 //!
 //! [`TreeSettings::split`]: super::TreeSettings::split
 
 use smallvec::SmallVec;
 
 use super::Entry;
+use super::bulk::{centre_key, widest_centre_axis};
 use crate::geometry::Aabb;
 
 /// How an overflowing node divides its entries between itself and a new
@@ -159,19 +161,8 @@ fn quadratic_split(entries: &mut [Entry], min_fill: usize) -> usize {
 }
 
 fn median_split(entries: &mut [Entry]) -> usize {
-    let centre = |e: &Entry, axis: usize| e.bound.min[axis] as f64 + e.bound.max[axis] as f64;
-    let spread = |axis: usize| {
-        let (lo, hi) = entries
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), e| {
-                (lo.min(centre(e, axis)), hi.max(centre(e, axis)))
-            });
-        hi - lo
-    };
-    let axis = (0..3)
-        .max_by(|&a, &b| spread(a).total_cmp(&spread(b)))
-        .expect("three axes");
-    entries.sort_by(|a, b| centre(a, axis).total_cmp(&centre(b, axis)));
+    let axis = widest_centre_axis(entries);
+    entries.sort_by(|a, b| centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis)));
     entries.len() / 2
 }
 
