@@ -79,11 +79,10 @@ use parry3d::bounding_volume::Aabb as ParryAabb;
 use parry3d::math::Vector as ParryVector;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhNode, BvhWorkspace, TraversalAction};
 use parry3d::query::Ray as ParryRay;
-use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{AABB as RstarEnvelope, SelectionFunction};
 
 mod common;
-use common::{bench_answers, bench_list};
+use common::{RstarBox, bench_answers, bench_list, sorted, to_parry, to_rstar};
 
 /// The scene's seed (the same as the other benchmark's).
 const SEED: u64 = 0x5EED_2024;
@@ -99,8 +98,6 @@ const INCOHERENT_BATCHES: usize = 4;
 const RAYS_PER_BATCH: usize = 1_000;
 /// The self join's distance: touching or overlapping pairs.
 const SELF_JOIN_DISTANCE: f32 = 0.0;
-
-type RstarBox = GeomWithData<Rectangle<[f32; 3]>, u32>;
 
 // ---------------------------------------------------------------------------
 // The predicates of SEMANTICS.md for the peers. Rays use the crate's own S4
@@ -209,20 +206,6 @@ fn grown(aabb: &Aabb, d: f32) -> Aabb {
 
 // ---------------------------------------------------------------------------
 // Conversions.
-
-fn to_parry(aabb: &Aabb) -> ParryAabb {
-    ParryAabb::new(
-        ParryVector::from_array(aabb.min.to_array()),
-        ParryVector::from_array(aabb.max.to_array()),
-    )
-}
-
-fn to_rstar(aabb: &Aabb, key: u32) -> RstarBox {
-    GeomWithData::new(
-        Rectangle::from_corners(aabb.min.to_array(), aabb.max.to_array()),
-        key,
-    )
-}
 
 fn parry_node_box(node: &BvhNode) -> (Vec3, Vec3) {
     (
@@ -739,11 +722,6 @@ fn parry_self_join(
 
 // ---------------------------------------------------------------------------
 // Checks.
-
-fn sorted<T: Ord>(mut v: Vec<T>) -> Vec<T> {
-    v.sort_unstable();
-    v
-}
 
 /// Panics with the first differences when `got` (sorted) is not `want`.
 fn assert_same<T: Ord + std::fmt::Debug>(who: &str, what: &str, got: &[T], want: &[T]) {

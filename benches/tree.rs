@@ -30,12 +30,11 @@ use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, SplitStrategy, TreeSettin
 use criterion::{BatchSize, Criterion, SamplingMode, criterion_group, criterion_main};
 use glam::Vec3;
 use parry3d::bounding_volume::Aabb as ParryAabb;
-use parry3d::math::Vector as ParryVector;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhWorkspace};
 use rstar::AABB as RstarEnvelope;
-use rstar::primitives::{GeomWithData, Rectangle};
 
 mod common;
+use common::{RstarBox, sorted, to_parry, to_rstar};
 
 /// The scene's seed; every contender sees the same boxes and frames.
 const SEED: u64 = 0x5EED_2024;
@@ -50,27 +49,11 @@ const CHECK_FRAMES: usize = 5;
 /// Query boxes used by the moves group's correctness checks.
 const MOVE_CHECK_QUERIES: usize = 200;
 
-type RstarBox = GeomWithData<Rectangle<[f32; 3]>, u32>;
-
 // ---------------------------------------------------------------------------
 // Conversions and inputs.
 
-fn to_rstar(aabb: &Aabb, id: u32) -> RstarBox {
-    GeomWithData::new(
-        Rectangle::from_corners(aabb.min.to_array(), aabb.max.to_array()),
-        id,
-    )
-}
-
 fn rstar_envelope(aabb: &Aabb) -> RstarEnvelope<[f32; 3]> {
     RstarEnvelope::from_corners(aabb.min.to_array(), aabb.max.to_array())
-}
-
-fn to_parry(aabb: &Aabb) -> ParryAabb {
-    ParryAabb::new(
-        ParryVector::from_array(aabb.min.to_array()),
-        ParryVector::from_array(aabb.max.to_array()),
-    )
 }
 
 fn keyed(boxes: &[Aabb]) -> Vec<(u32, Aabb)> {
@@ -197,11 +180,6 @@ impl SoaBoxes {
 
 // ---------------------------------------------------------------------------
 // Correctness helpers: sorted answers of each contender.
-
-fn sorted(mut v: Vec<u32>) -> Vec<u32> {
-    v.sort_unstable();
-    v
-}
 
 fn answer_rstar(tree: &rstar::RTree<RstarBox>, q: &Aabb) -> Vec<u32> {
     sorted(
