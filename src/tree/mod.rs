@@ -33,7 +33,7 @@ pub use update::MoveKind;
 pub use validate::InvariantViolation;
 
 use crate::geometry::{Aabb, SpatialError};
-use handle::Proxy;
+use handle::{Proxy, Stamp};
 use node::{FREE_LEVEL, NIL, Node};
 
 /// The smallest node width the tree supports.
@@ -79,6 +79,9 @@ pub struct RTree<K, const W: usize = 8> {
     /// The entries' keys, indexed like `proxies`; kept apart so traversals
     /// that report keys read a dense array.
     keys: Vec<K>,
+    /// Each slot's generation and liveness, indexed like `proxies`; kept
+    /// apart so checking handles reads a dense array.
+    stamps: Vec<Stamp>,
     /// Restructuring moves absorbed per node since its last repack, indexed
     /// like `nodes`; drives `optimize`.
     churn: Vec<u32>,
@@ -119,6 +122,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             root: 0,
             proxies: Vec::new(),
             keys: Vec::new(),
+            stamps: Vec::new(),
             churn: vec![0],
             free_proxies: Vec::new(),
             len: 0,
@@ -180,10 +184,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .enumerate()
             .filter(|(_, p)| p.is_live())
             .map(|(i, p)| {
-                let id = ProxyId {
-                    index: i as u32,
-                    generation: p.generation,
-                };
+                let id = self.handle(i as u32);
                 (
                     id,
                     self.keys[i],
@@ -194,10 +195,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Removes every entry; handles issued before are refused afterwards.
     pub fn clear(&mut self) {
-        for proxy in &mut self.proxies {
+        for (proxy, stamp) in self.proxies.iter_mut().zip(&mut self.stamps) {
             if proxy.is_live() {
                 proxy.leaf = NIL;
-                proxy.generation = proxy.generation.wrapping_add(1);
+                *stamp = stamp.retired();
             }
         }
         self.free_proxies = (0..self.proxies.len() as u32).rev().collect();
@@ -219,8 +220,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// The proxy index of a live handle, or `UnknownProxy`.
     #[inline]
     fn check(&self, id: ProxyId) -> Result<u32, SpatialError> {
-        match self.proxies.get(id.index as usize) {
-            Some(p) if p.is_live() && p.generation == id.generation => Ok(id.index),
+        match self.stamps.get(id.index as usize) {
+            Some(stamp) if stamp.admits(id) => Ok(id.index),
             _ => Err(SpatialError::UnknownProxy),
         }
     }
@@ -262,11 +263,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.free_nodes.push(index);
     }
 
+    /// A slot for a new entry, marked live; the caller links it into a leaf.
     fn alloc_proxy(&mut self, key: K, fat: Aabb) -> u32 {
         match self.free_proxies.pop() {
             Some(index) => {
                 self.proxies[index as usize].fat = fat;
                 self.keys[index as usize] = key;
+                let stamp = &mut self.stamps[index as usize];
+                *stamp = stamp.revived();
                 index
             }
             None => {
@@ -274,9 +278,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     fat,
                     leaf: NIL,
                     lane: 0,
-                    generation: 0,
                 });
                 self.keys.push(key);
+                self.stamps.push(Stamp::FRESH.revived());
                 (self.proxies.len() - 1) as u32
             }
         }
@@ -286,7 +290,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub(crate) fn handle(&self, proxy: u32) -> ProxyId {
         ProxyId {
             index: proxy,
-            generation: self.proxies[proxy as usize].generation,
+            generation: self.stamps[proxy as usize].generation(),
         }
     }
 

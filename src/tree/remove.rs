@@ -26,9 +26,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub fn remove(&mut self, id: ProxyId) -> Result<K, SpatialError> {
         let proxy = self.check(id)?;
         self.detach(proxy);
-        let record = &mut self.proxies[proxy as usize];
-        record.leaf = NIL;
-        record.generation = record.generation.wrapping_add(1);
+        self.proxies[proxy as usize].leaf = NIL;
+        let stamp = &mut self.stamps[proxy as usize];
+        *stamp = stamp.retired();
         self.free_proxies.push(proxy);
         self.len -= 1;
         self.maintenance.removals += 1;

@@ -146,6 +146,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         );
         let live_proxies = self.proxies.iter().filter(|p| p.is_live()).count();
         ensure!(
+            self.stamps.len() == self.proxies.len(),
+            "{} stamps for {} proxy slots",
+            self.stamps.len(),
+            self.proxies.len()
+        );
+        for (index, (proxy, stamp)) in self.proxies.iter().zip(&self.stamps).enumerate() {
+            ensure!(
+                proxy.is_live() == stamp.is_live(),
+                "proxy {index} is live in its record but not in its stamp, or the reverse"
+            );
+        }
+        ensure!(
             live_proxies == self.len,
             "{live_proxies} live handles but len() = {}",
             self.len
