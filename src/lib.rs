@@ -143,10 +143,10 @@
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene
 //! (`cargo bench --bench tree -- split/`): 100,000 single inserts take
-//! 78.8 / 62.1 / 49.2 ms with [`SplitStrategy::RStar`] / `Quadratic` /
-//! `Median`, a frame's 10,000 moves 0.62 / 0.64 / 0.59 ms (level within
-//! the noise), and 1,000 box queries on the churned tree 0.51 / 0.55 /
-//! 0.58 ms (a bulk-loaded tree of the same boxes: 0.38 ms). The R* split is
+//! 111 / 92 / 62 ms with [`SplitStrategy::RStar`] / `Quadratic` /
+//! `Median`, a frame's 10,000 moves 0.69 / 0.77 / 0.71 ms, and 1,000 box
+//! queries on the churned tree 0.75 / 0.89 / 1.04 ms (a bulk-loaded tree of
+//! the same boxes: 0.53 ms). The R* split is
 //! the default: queries run every
 //! frame, and it leaves the best tree.
 //!
