@@ -124,6 +124,42 @@ fn unknown_and_stale_handles_are_refused() {
 }
 
 #[test]
+fn a_handle_naming_a_free_slot_is_refused_whatever_its_generation() {
+    let (mut tree, ids) = populated();
+    let unit = common::aabb([0.0; 3], [1.0; 3]);
+    // Another tree hands out slot 0 at generation 1: insert, remove, insert.
+    let mut other = RTree::new();
+    let first = other.insert(0u32, unit).unwrap();
+    other.remove(first).unwrap();
+    let foreign = other.insert(1, unit).unwrap();
+    assert_eq!(foreign.index(), 0);
+
+    // Here slot 0 is free at generation 1 after its entry's removal.
+    assert_eq!(ids[0].index(), 0);
+    tree.remove(ids[0]).unwrap();
+    let before = snapshot(&tree);
+    assert_eq!(tree.get(foreign), Err(SpatialError::UnknownProxy));
+    assert_eq!(tree.update(foreign, unit), Err(SpatialError::UnknownProxy));
+    assert_eq!(
+        tree.update_batch(&[(ids[1], unit), (foreign, unit)]),
+        Err(SpatialError::UnknownProxy)
+    );
+    assert_eq!(tree.remove(foreign), Err(SpatialError::UnknownProxy));
+    assert_eq!(snapshot(&tree), before);
+    tree.validate().unwrap();
+
+    // After `clear`, no handle issued before it names anything.
+    tree.clear();
+    for &id in &ids {
+        assert!(!tree.contains(id));
+    }
+    let fresh = tree.insert(9, unit).unwrap();
+    assert!(ids.iter().all(|&old| old != fresh));
+    assert_eq!(tree.get(fresh).unwrap().0, 9);
+    tree.validate().unwrap();
+}
+
+#[test]
 fn invalid_settings_are_refused() {
     let bad = [
         TreeSettings {
