@@ -57,7 +57,9 @@ impl Proxy {
 /// Stamps live in a dense array apart from the [`Proxy`] records, so that
 /// checking a frame's handles reads 4 bytes per handle: 400 KB for 100,000
 /// entries, which stays in cache, where the records would take 3.2 MB.
-/// Generations count modulo 2^31.
+/// Generations count modulo 2^31. A record's `leaf == NIL` says the same as
+/// a stamp that is not live, for code that walks the records;
+/// [`RTree::validate`](super::RTree::validate) checks that the two agree.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Stamp(u32);
 

@@ -70,7 +70,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// cache), and while the applying pass applies one move it asks for the
     /// record of the move sixteen places ahead and the leaf of the move eight
     /// places ahead, so their loads overlap (on the standard scene's 10,000
-    /// moves per frame, 25 to 31 % less time than one `update` per move in
+    /// moves per frame, 25 to 33 % less time than one `update` per move in
     /// this machine's runs).
     ///
     /// ```
