@@ -180,6 +180,42 @@ fn boxes_one_ulp_apart_far_out() {
     }
 }
 
+/// S8 computes the gap in `f64` from the `f32` boxes, and that rounding can
+/// accept a pair whose real gap exceeds `d` by a hair: here the real gap is
+/// `5 + 1e-20`, which rounds to `5.0`. A traversal that grows boxes by
+/// exactly `d` in `f32` (`-5 + 5 = 0 < 1e-20`), even rounded outward by one
+/// ulp, dismisses the pair before the exact test sees it.
+#[test]
+fn a_pair_the_f64_gap_rounds_into_reach_is_found() {
+    let a = common::aabb([-6.0, 0.0, 0.0], [-5.0, 1.0, 1.0]);
+    let b = common::aabb([1e-20, 0.0, 0.0], [1.0, 1.0, 1.0]);
+    for mode in MODES {
+        assert!(pairs(a, b, 5.0, mode), "self join, {mode:?}");
+        let (ta, oa, _) = build::<8>(&[a], 0);
+        let (tb, ob, _) = build::<8>(&[b], 1);
+        assert_eq!(oa.cross_join(&ob, 5.0, mode).unwrap(), vec![(0, 1)]);
+        assert_eq!(
+            ta.cross_join(&tb, 5.0, mode).unwrap(),
+            vec![(0, 1)],
+            "cross join, {mode:?}"
+        );
+        let (both, _, ids) = build::<8>(&[a, b], 0);
+        let mut moved = Vec::new();
+        both.visit_self_join_moved(
+            &ids[..1],
+            5.0,
+            mode,
+            &mut QueryWorkspace::default(),
+            |x, y| {
+                moved.push((x, y));
+                std::ops::ControlFlow::Continue(())
+            },
+        )
+        .unwrap();
+        assert_eq!(moved, vec![(0, 1)], "moved join, {mode:?}");
+    }
+}
+
 #[test]
 fn invalid_distances_are_refused() {
     let (tree, oracle) = pair_world(

@@ -42,11 +42,12 @@ impl JoinMode {
     }
 }
 
-/// A join's distance test, checked once per call: `distance` grows boxes
-/// during the traversal, its `f64` widening decides entry pairs by `mode`.
+/// A join's distance test, checked once per call: `reach` grows boxes
+/// during the traversal, `exact` (the distance widened to `f64`) decides
+/// entry pairs by `mode`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct JoinTest {
-    distance: f32,
+    reach: f32,
     exact: f64,
     mode: JoinMode,
 }
@@ -56,8 +57,8 @@ impl JoinTest {
     /// finite and `>= 0`.
     pub(crate) fn new(distance: f32, mode: JoinMode) -> Result<Self, SpatialError> {
         Ok(JoinTest {
-            distance,
             exact: check_distance(distance)?,
+            reach: reach_of(distance),
             mode,
         })
     }
@@ -69,14 +70,41 @@ impl JoinTest {
     }
 }
 
-/// `aabb` grown by `distance` on every side, rounded outward, so that a lane
-/// overlap test against it never dismisses a pair within `distance`.
+/// How far the traversal grows boxes for a join within `distance`: the
+/// `f32` just above `distance` (`0` for `0`).
+///
+/// S8 rounds each axis gap to `f64`, so it accepts some pairs whose real
+/// gap exceeds `distance` by up to a few `2^-53` of it, never more than
+/// `2^-49` of it; the next `f32` up is at least `2^-24` of it higher, so
+/// every pair S8 accepts has real gaps `<= reach` on every axis. For `0`
+/// the `f64` gap is exact (a nonzero difference of two `f32` never rounds
+/// to zero), so nothing needs adding.
+fn reach_of(distance: f32) -> f32 {
+    if distance == 0.0 {
+        0.0
+    } else {
+        distance.next_up()
+    }
+}
+
+/// `aabb` grown by `by` (a join's reach, see [`reach_of`]) on every side, in
+/// plain `f32` arithmetic.
+///
+/// A lane test against the grown box never dismisses a pair S8 accepts,
+/// although each sum is rounded: such a pair has
+/// `lane.min <= aabb.max + reach` on every axis in real arithmetic, and
+/// rounding to nearest is monotonic and leaves the representable
+/// `lane.min` as it is, so `lane.min <= fl(aabb.max + reach)` too (and
+/// likewise on the other side). Regions only take minima and maxima of such
+/// sums, which keeps the argument. Rounding every sum outward instead
+/// (`next_down` / `next_up`) cost a quarter of a self join, and still
+/// missed pairs near zero (see `reach_of`).
 #[inline(always)]
-fn reach(aabb: &Aabb, distance: f32) -> Aabb {
-    let d = Vec3::splat(distance);
+fn grow(aabb: &Aabb, by: f32) -> Aabb {
+    let d = Vec3::splat(by);
     Aabb {
-        min: Vec3::from_array((aabb.min - d).to_array().map(f32::next_down)),
-        max: Vec3::from_array((aabb.max + d).to_array().map(f32::next_up)),
+        min: aabb.min - d,
+        max: aabb.max + d,
     }
 }
 
@@ -129,13 +157,13 @@ fn meet(a: &Aabb, b: &Aabb) -> Aabb {
 }
 
 /// The children of `node` whose bound overlaps `region`, each with the
-/// region cut down to its bound grown by `distance`: the items of a node
-/// that descends alone against a shorter partner.
+/// region cut down to its bound grown by `reach`: the items of a node that
+/// descends alone against a shorter partner.
 #[inline]
 fn children_in_region<'a, const W: usize>(
     node: &'a Node<W>,
     region: &'a Aabb,
-    distance: f32,
+    reach: f32,
 ) -> impl Iterator<Item = (u32, Aabb)> + 'a {
     let mut mask = node.overlap_mask(region) & used_lanes(node);
     std::iter::from_fn(move || {
@@ -144,7 +172,7 @@ fn children_in_region<'a, const W: usize>(
         }
         let lane = mask.trailing_zeros() as usize;
         mask &= mask - 1;
-        let cut = meet(region, &reach(&node.lane_box(lane), distance));
+        let cut = meet(region, &grow(&node.lane_box(lane), reach));
         Some((node.child[lane], cut))
     })
 }
@@ -177,7 +205,7 @@ fn join_lane_pairs<const W: usize>(
         let i = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
         let lane_box = na.lane_box(i);
-        let lane_reach = reach(&lane_box, test.distance);
+        let lane_reach = grow(&lane_box, test.reach);
         let mut mask = nb.overlap_mask(&lane_reach) & b_lanes;
         if same_node {
             mask &= !((2u32 << i) - 1);
@@ -199,7 +227,7 @@ fn join_lane_pairs<const W: usize>(
                 ws.join_stack.push(JoinItem {
                     a: na.child[i],
                     b: nb.child[j],
-                    region: meet(&lane_reach, &reach(&nb.lane_box(j), test.distance)),
+                    region: meet(&lane_reach, &grow(&nb.lane_box(j), test.reach)),
                 });
             } else if test.accepts(&lane_box, &nb.lane_box(j)) {
                 emit(i, j)?;
@@ -340,7 +368,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if na.level != nb.level {
             let a_descends = na.level > nb.level;
             let taller = if a_descends { na } else { nb };
-            for (child, region) in children_in_region(taller, &region, test.distance) {
+            for (child, region) in children_in_region(taller, &region, test.reach) {
                 let (a, b) = if a_descends { (child, b) } else { (a, child) };
                 ws.join_stack.push(JoinItem { a, b, region });
             }
@@ -417,7 +445,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         for &m in &sorted {
             let (key_m, box_m) = self.get(self.handle(m)).expect("checked above");
             let mut inner = ControlFlow::Continue(());
-            self.visit_overlapping_proxies(&reach(&box_m, distance), ws, |c, box_c| {
+            self.visit_overlapping_proxies(&grow(&box_m, test.reach), ws, |c, box_c| {
                 // A pair of two moved entries is reported from the lower one.
                 if c == m || (c < m && sorted.binary_search(&c).is_ok()) {
                     return ControlFlow::Continue(());
