@@ -126,23 +126,91 @@ impl<const W: usize> Node<W> {
 
     /// Bit `i` set iff lane `i`'s box overlaps `query` (closed boxes).
     ///
-    /// Written as plain per-lane comparisons over the arrays so the compiler
-    /// can vectorise it; the result is the same as calling the scalar
-    /// predicate per lane, because it is the same comparisons.
+    /// Four lanes at a time in `glam::Vec4` (SSE2 on x86-64, plain floats
+    /// elsewhere): the six comparisons of the scalar predicate per lane,
+    /// combined and turned into bits with one movemask. The loop over lanes
+    /// it replaced was vectorised by the compiler, but turned its bools into
+    /// bits slowly: box queries took twice as long with it, a self join 40 %
+    /// longer. A unit test checks that the mask agrees with the scalar
+    /// predicate bit for bit.
     // Always inlined: it is the inner step of every overlap and join
     // traversal, and as a call it cost about half of a self join.
     #[inline(always)]
     pub fn overlap_mask(&self, query: &Aabb) -> u32 {
+        use glam::Vec4;
+        let q_lo = [query.min.x, query.min.y, query.min.z].map(Vec4::splat);
+        let q_hi = [query.max.x, query.max.y, query.max.z].map(Vec4::splat);
         let mut mask = 0u32;
-        for lane in 0..W {
-            let hit = (self.min[0][lane] <= query.max.x)
-                & (self.min[1][lane] <= query.max.y)
-                & (self.min[2][lane] <= query.max.z)
-                & (query.min.x <= self.max[0][lane])
-                & (query.min.y <= self.max[1][lane])
-                & (query.min.z <= self.max[2][lane]);
-            mask |= (hit as u32) << lane;
+        for first in (0..W).step_by(4) {
+            let four = |row: &[f32; W]| Vec4::from_slice(&row[first..first + 4]);
+            let hit = four(&self.min[0]).cmple(q_hi[0])
+                & four(&self.min[1]).cmple(q_hi[1])
+                & four(&self.min[2]).cmple(q_hi[2])
+                & q_lo[0].cmple(four(&self.max[0]))
+                & q_lo[1].cmple(four(&self.max[1]))
+                & q_lo[2].cmple(four(&self.max[2]));
+            mask |= hit.bitmask() << first;
         }
         mask
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::predicates::boxes_overlap;
+    use crate::scene::SceneRng;
+    use glam::Vec3;
+
+    /// `overlap_mask` and the scalar S2 predicate agree lane by lane, on grid
+    /// values where faces touch and signed zeros meet, on arbitrary floats,
+    /// on infinite queries and on unused (inverted) lanes.
+    fn mask_agrees_with_the_scalar_predicate<const W: usize>() {
+        let mut rng = SceneRng::new(7);
+        let mut pick = |grid: bool| {
+            if grid {
+                [-1.0, -0.5, -0.0, 0.0, 0.5, 1.0][rng.below(6)]
+            } else {
+                rng.range(-2.0, 2.0)
+            }
+        };
+        for round in 0..20_000 {
+            let grid = round % 2 == 0;
+            let mut node = Node::<W>::empty(0, NIL);
+            for lane in 0..1 + round % W {
+                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
+                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
+                node.set_lane_box(
+                    lane,
+                    &Aabb {
+                        min: a.min(b),
+                        max: a.max(b),
+                    },
+                );
+            }
+            let a = Vec3::new(pick(grid), pick(grid), pick(grid));
+            let b = Vec3::new(pick(grid), pick(grid), pick(grid));
+            let mut query = Aabb {
+                min: a.min(b),
+                max: a.max(b),
+            };
+            if round % 7 == 0 {
+                query.max.y = f32::INFINITY;
+                query.min.z = f32::NEG_INFINITY;
+            }
+            let mask = node.overlap_mask(&query);
+            for lane in 0..W {
+                let scalar = boxes_overlap(&node.lane_box(lane), &query);
+                assert_eq!(mask >> lane & 1 == 1, scalar, "lane {lane} round {round}");
+            }
+            assert_eq!(mask >> W, 0, "no bits above the width");
+        }
+    }
+
+    #[test]
+    fn overlap_mask_agrees_bit_for_bit_with_the_scalar_predicate() {
+        mask_agrees_with_the_scalar_predicate::<4>();
+        mask_agrees_with_the_scalar_predicate::<8>();
+        mask_agrees_with_the_scalar_predicate::<16>();
     }
 }
