@@ -8,10 +8,10 @@
 
 use std::ops::ControlFlow;
 
-use glam::Vec3;
+use glam::Vec4;
 
 use super::QueryWorkspace;
-use crate::geometry::predicates::{frustum_exact_rest, plane_value};
+use crate::geometry::predicates::frustum_exact_rest;
 use crate::geometry::{Frustum, FrustumSat};
 use crate::tree::RTree;
 use crate::tree::node::Node;
@@ -370,29 +370,28 @@ impl PreparedView {
             } else {
                 (&node.min[2], &node.max[2])
             };
+            // `plane_value` four lanes at a time, same operations in the same
+            // order, so the bits agree with the scalar predicate.
+            let value = |x: &[f32; W], y: &[f32; W], z: &[f32; W], first: usize| {
+                let four = |row: &[f32; W]| Vec4::from_slice(&row[first..first + 4]);
+                Vec4::splat(n.x) * (four(x) - Vec4::splat(eye.x))
+                    + Vec4::splat(n.y) * (four(y) - Vec4::splat(eye.y))
+                    + Vec4::splat(n.z) * (four(z) - Vec4::splat(eye.z))
+                    + Vec4::splat(plane.offset)
+            };
             let mut outside_free = 0u32;
-            let mut inside = 0u32;
-            for lane in 0..W {
-                let far = plane_value(
-                    n,
-                    plane.offset,
-                    eye,
-                    Vec3::new(px[lane], py[lane], pz[lane]),
-                );
-                outside_free |= ((far > 0.0) as u32) << lane;
+            for first in (0..W).step_by(4) {
+                let far = value(px, py, pz, first);
+                outside_free |= far.cmpgt(Vec4::ZERO).bitmask() << first;
             }
             alive &= outside_free;
             if !INSIDE {
                 continue;
             }
-            for lane in 0..W {
-                let near = plane_value(
-                    n,
-                    plane.offset,
-                    eye,
-                    Vec3::new(nx[lane], ny[lane], nz[lane]),
-                );
-                inside |= ((near > 0.0) as u32) << lane;
+            let mut inside = 0u32;
+            for first in (0..W).step_by(4) {
+                let near = value(nx, ny, nz, first);
+                inside |= near.cmpgt(Vec4::ZERO).bitmask() << first;
             }
             let mut inside_lanes = inside;
             while inside_lanes != 0 {
@@ -411,5 +410,91 @@ impl PreparedView {
             Some(sat) => frustum_exact_rest(&self.frustum, sat, aabb),
             None => true,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::predicates::{frustum_conservative, frustum_contains, plane_value};
+    use crate::geometry::{Aabb, HalfSpace};
+    use crate::scene::SceneRng;
+    use crate::tree::node::NIL;
+    use glam::Vec3;
+
+    /// The lane test (four lanes at a time) and the scalar S7 corner tests
+    /// agree lane by lane: a lane is alive iff its box passes the
+    /// conservative test, and has no plane left iff the frustum contains
+    /// it. Grid values make corners land exactly on planes.
+    fn lanes_agree_with_the_scalar_predicates<const W: usize>() {
+        let mut rng = SceneRng::new(11);
+        let mut pick = |grid: bool| {
+            if grid {
+                (rng.below(9) as f32 - 4.0) * 0.5
+            } else {
+                rng.range(-4.0, 4.0)
+            }
+        };
+        let mut checked = 0;
+        for round in 0..20_000 {
+            let grid = round % 2 == 0;
+            let mut node = Node::<W>::empty(0, NIL);
+            let lanes = 1 + round % W;
+            for lane in 0..lanes {
+                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
+                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
+                node.set_lane_box(
+                    lane,
+                    &Aabb {
+                        min: a.min(b),
+                        max: a.max(b),
+                    },
+                );
+            }
+            let eye = Vec3::new(pick(grid), pick(grid), pick(grid));
+            let planes = std::array::from_fn(|i| {
+                if i == 5 && round % 3 == 0 {
+                    return HalfSpace::INACTIVE;
+                }
+                let normal = Vec3::new(pick(grid), pick(grid), pick(grid));
+                let offset = if round % 4 == 1 {
+                    // Through a lane's corner, in the scalar order of
+                    // operations: its value is exactly zero there, and any
+                    // other order of the same sums may round it either way.
+                    let aabb = node.lane_box(i % lanes);
+                    let (far, near) = (normal.cmpge(Vec3::ZERO), normal.cmplt(Vec3::ZERO));
+                    let corner_is_far = i % 2 == 0;
+                    let corner =
+                        Vec3::select(if corner_is_far { far } else { near }, aabb.max, aabb.min);
+                    -plane_value(normal, 0.0, eye, corner)
+                } else {
+                    pick(grid) + 2.0
+                };
+                HalfSpace { normal, offset }
+            });
+            let Ok(frustum) = Frustum::new(eye, planes) else {
+                continue;
+            };
+            let view = PreparedView::new(&frustum, CullMode::Conservative);
+            let (alive, remaining) = view.test_lanes::<W, true>(&node, view.active_planes);
+            let (alive_only, _) = view.test_lanes::<W, false>(&node, view.active_planes);
+            assert_eq!(alive, alive_only, "round {round}");
+            for (lane, remaining) in remaining.iter().enumerate().take(lanes) {
+                let aabb = node.lane_box(lane);
+                let visible = frustum_conservative(&frustum, &aabb);
+                assert_eq!(alive >> lane & 1 == 1, visible, "lane {lane} round {round}");
+                let contained = frustum_contains(&frustum, &aabb);
+                assert_eq!(*remaining == 0, contained, "lane {lane} round {round}");
+            }
+            checked += 1;
+        }
+        assert!(checked > 10_000, "most random frustums are valid");
+    }
+
+    #[test]
+    fn lane_tests_agree_bit_for_bit_with_the_scalar_predicates() {
+        lanes_agree_with_the_scalar_predicates::<4>();
+        lanes_agree_with_the_scalar_predicates::<8>();
+        lanes_agree_with_the_scalar_predicates::<16>();
     }
 }
