@@ -98,7 +98,7 @@ proptest! {
 }
 
 /// Two boxes (keys 0 and 1) among 1,000 distractors far from them.
-fn pair_world(a: Aabb, b: Aabb) -> (RTree<u32>, BruteForce<u32>) {
+fn pair_world(a: Aabb, b: Aabb) -> (RTree<u32, 8>, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(13);
     let mut boxes = vec![a, b];
     while boxes.len() < 1_002 {

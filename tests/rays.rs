@@ -209,7 +209,7 @@ fn rays_from_inside_stacked_boxes_hit_the_smallest_key_at_zero() {
 }
 
 /// The unit box as key 0 among 1,000 distractors away from it.
-fn unit_world(extra: &[Aabb]) -> (RTree<u32>, BruteForce<u32>) {
+fn unit_world(extra: &[Aabb]) -> (RTree<u32, 8>, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(11);
     let mut boxes = vec![common::aabb([0.0; 3], [1.0; 3])];
     boxes.extend_from_slice(extra);

@@ -186,7 +186,7 @@ fn small_moves_are_absorbed_without_restructuring() {
 fn bulk_load_gives_an_optimal_height_and_optimize_keeps_it_valid() {
     let (mut scene, mut tree, ids) = common::town_tree(20_000, 7);
     tree.validate().unwrap();
-    assert_eq!(tree.height(), optimal_height(20_000, 8));
+    assert_eq!(tree.height(), optimal_height(20_000, RTree::<u32>::WIDTH));
     for _ in 0..30 {
         let moved = scene.advance_frame().to_vec();
         for i in moved {

@@ -212,6 +212,12 @@ proptest! {
         run::<8>(TreeSettings::default(), &ops);
     }
 
+    /// The default width with the default settings.
+    #[test]
+    fn width_16_matches_oracle_after_every_operation(ops in ops()) {
+        run::<16>(TreeSettings::default(), &ops);
+    }
+
     #[test]
     fn width_16_without_margin_matches_oracle(ops in ops()) {
         let settings = TreeSettings { margin: 0.0, displacement_factor: 0.0, ..eager_settings() };

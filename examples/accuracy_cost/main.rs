@@ -68,6 +68,9 @@ const RAY_ORACLE_EVERY: usize = 10;
 const OPTIMIZE_BUDGET: usize = usize::MAX;
 /// The node widths compared.
 const WIDTHS: [usize; 3] = [4, 8, 16];
+/// The crate's default node width: the bounds policies and the modes are
+/// measured at it.
+const DEFAULT_WIDTH: usize = RTree::<u32>::WIDTH;
 
 /// One kept tree of any node width, so the frame loop can treat every
 /// contender alike.
@@ -257,12 +260,13 @@ struct Contender {
 
 impl Contender {
     fn is_default(&self) -> bool {
-        self.width == 8 && self.settings == TreeSettings::default()
+        self.width == DEFAULT_WIDTH && self.settings == TreeSettings::default()
     }
 }
 
-/// The contenders: every bounds policy at width 8, then widths 4 and 16 with
-/// default settings (width 8 with default settings is the margin 0.1 row).
+/// The contenders: every bounds policy at the default width, then the other
+/// widths with default settings (the default width with default settings is
+/// the margin 0.1 row).
 fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
     let d = TreeSettings::default();
     let mut specs: Vec<(Knob, String, String, usize, TreeSettings)> = Vec::new();
@@ -273,7 +277,7 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             ..d
         };
         let (label, tick) = (format!("margin {margin} m"), format!("{margin}"));
-        specs.push((Knob::Margin, label, tick, 8, settings));
+        specs.push((Knob::Margin, label, tick, DEFAULT_WIDTH, settings));
     }
     for fraction in [0.05f32, 0.1, 0.25] {
         let settings = TreeSettings {
@@ -287,7 +291,7 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             Knob::Fraction,
             label,
             format!("{percent:.0} %"),
-            8,
+            DEFAULT_WIDTH,
             settings,
         ));
     }
@@ -297,9 +301,15 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             ..d
         };
         let label = format!("margin 0.1 m, displacement x{factor}");
-        specs.push((Knob::Displacement, label, format!("x{factor}"), 8, settings));
+        specs.push((
+            Knob::Displacement,
+            label,
+            format!("x{factor}"),
+            DEFAULT_WIDTH,
+            settings,
+        ));
     }
-    for width in [4, 16] {
+    for width in WIDTHS.into_iter().filter(|&w| w != DEFAULT_WIDTH) {
         specs.push((
             Knob::Width,
             format!("width {width}"),
@@ -750,6 +760,10 @@ fn main() {
         .iter()
         .position(Contender::is_default)
         .expect("the default settings are a contender");
+    let default_join = WIDTHS
+        .iter()
+        .position(|&w| w == DEFAULT_WIDTH)
+        .expect("the default width is compared");
     let mut joins: Vec<Box<dyn Joined>> = WIDTHS
         .iter()
         .map(|&w| join_trees(scene.boxes(), w, &ranges))
@@ -808,7 +822,7 @@ fn main() {
             frame,
             frame + 1 == frames,
             contenders[default].index.as_ref(),
-            joins[1].as_ref(),
+            joins[default_join].as_ref(),
             &mut scene,
             [&oracle, &enemy_oracle, &barrel_oracle],
             &mut figures,

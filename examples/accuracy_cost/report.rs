@@ -9,8 +9,8 @@ use bevy_rtree::scene::TownScene;
 use crate::svg::{Figure, Kind, Panel, Series};
 use crate::{
     BOX_QUERIES, BOX_QUERY_HALF, BUILD_REPS, BoxCost, CHURNED_CULL_REPS, CULL_REPS, Contender,
-    FrameFigures, Knob, QUERY_REPS, RAY_REPS, SEED, WIDTH_REPS, WIDTHS, WidthFigures, mean, median,
-    min_max,
+    DEFAULT_WIDTH, FrameFigures, Knob, QUERY_REPS, RAY_REPS, SEED, WIDTH_REPS, WIDTHS,
+    WidthFigures, mean, median, min_max,
 };
 
 /// Everything the tables and plots are made of.
@@ -112,7 +112,7 @@ impl Report<'_> {
         self.contenders.iter().filter(move |c| c.knob == knob)
     }
 
-    /// The width contenders in the order of `WIDTHS` (8 is the default tree).
+    /// The width contenders in the order of `WIDTHS`.
     fn widths(&self) -> [&Contender; 3] {
         WIDTHS.map(|w| {
             self.contenders
@@ -197,12 +197,12 @@ impl Report<'_> {
         let _ = writeln!(s, "## 1. Enlarged bounds (TreeSettings)\n");
         let _ = writeln!(
             s,
-            "Each policy is bulk-loaded from the same boxes at width 8 and lives \
-             through the same frames: every moved entity is `update`d, then \
-             `optimize` repairs all pending churn. Settings not varied in a row \
-             keep their defaults (absolute margin 0.1 m, fraction 0, displacement \
-             factor 4), except that the fraction rows set the absolute margin \
-             to 0.\n"
+            "Each policy is bulk-loaded from the same boxes at width \
+             {DEFAULT_WIDTH} (the default) and lives through the same frames: every \
+             moved entity is `update`d, then `optimize` repairs all pending churn. \
+             Settings not varied in a row keep their defaults (absolute margin \
+             0.1 m, fraction 0, displacement factor 4), except that the fraction \
+             rows set the absolute margin to 0.\n"
         );
         let _ = writeln!(s, "### Update side\n");
         let _ = writeln!(
@@ -343,7 +343,7 @@ impl Report<'_> {
         let _ = writeln!(
             s,
             "Enemies (entities 0..10,000) x barrels (10,000..15,000) within {} m, \
-             on two width-8 trees kept up to date through the frames; one timed \
+             on two width-{DEFAULT_WIDTH} trees kept up to date through the frames; one timed \
              join per mode and measured frame, the first mode alternating. Extra \
              pairs: Chebyshev pairs minus Euclidean pairs (each list equal to the \
              oracle's in its mode), and their share of the Euclidean pairs.\n",
@@ -532,7 +532,7 @@ impl Report<'_> {
         };
         let time = Figure {
             title: format!(
-                "Enlarged bounds: update and query time (town, {} entities, width 8)",
+                "Enlarged bounds: update and query time (town, {} entities, width {DEFAULT_WIDTH})",
                 thousands(self.count)
             ),
             columns: 1,
@@ -664,7 +664,7 @@ impl Report<'_> {
         };
         let rays = |r: usize| [median(&f.ray_ms[r][0]), median(&f.ray_ms[r][1])];
         Figure {
-            title: "Mode comparisons on the default tree (town, width 8)".to_string(),
+            title: format!("Mode comparisons on the default tree (town, width {DEFAULT_WIDTH})"),
             columns: 2,
             panel_width: 420.0,
             panel_height: 280.0,

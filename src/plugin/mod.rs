@@ -93,7 +93,8 @@ use diagnostics::DiagnosticsSink;
 /// Maintains one spatial index per layer and answers the frame's culling,
 /// raycasts and joins.
 ///
-/// Every index is an [`RTree`](crate::RTree) of width 8 keyed by [`Entity`].
+/// Every index is an [`RTree`](crate::RTree) of the default width keyed by
+/// [`Entity`].
 ///
 /// ```
 /// use bevy_app::prelude::*;

@@ -44,8 +44,8 @@ const MAX_WIDTH: usize = 16;
 /// A wide, dynamic R-tree over `(key, box)` entries.
 ///
 /// `K` is the caller's key (an ECS entity, an index, ...): answers report it
-/// and break ties by it. `W` is the node width, 4, 8 (the default) or 16;
-/// see the crate docs for the measurements behind the default.
+/// and break ties by it. `W` is the node width, 4, 8 or 16 (the default);
+/// see the crate docs ("Node width") for the measurements behind the default.
 ///
 /// Each entry keeps its exact box, used by every answer, and an enlarged box
 /// used only by the tree's structure, so that small moves cost O(1)
@@ -69,7 +69,7 @@ const MAX_WIDTH: usize = 16;
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
 #[derive(Clone, Debug)]
-pub struct RTree<K, const W: usize = 8> {
+pub struct RTree<K, const W: usize = 16> {
     /// The node pool; freed nodes are recycled through `free_nodes`.
     nodes: Vec<Node<W>>,
     free_nodes: Vec<u32>,
@@ -93,20 +93,30 @@ pub struct RTree<K, const W: usize = 8> {
     maintenance: MaintenanceStats,
 }
 
-impl<K: Copy + Ord> Default for RTree<K, 8> {
+impl<K: Copy + Ord> Default for RTree<K, 16> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<K: Copy + Ord> RTree<K, 8> {
-    /// An empty tree of width 8 with default settings.
+impl<K: Copy + Ord> RTree<K, 16> {
+    /// An empty tree of width 16 with default settings.
     pub fn new() -> Self {
         Self::with_settings(TreeSettings::default()).expect("default settings are valid")
     }
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// The node width `W`: children per node.
+    ///
+    /// ```
+    /// use bevy_rtree::RTree;
+    ///
+    /// assert_eq!(RTree::<u32>::WIDTH, 16);
+    /// assert_eq!(RTree::<u32, 8>::WIDTH, 8);
+    /// ```
+    pub const WIDTH: usize = W;
+
     /// Minimum fill of every node but the root: 40 % of `W`, as in the R*-tree.
     pub(crate) const MIN_FILL: usize = if W * 2 / 5 < 2 { 2 } else { W * 2 / 5 };
 
