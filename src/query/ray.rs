@@ -1,15 +1,18 @@
 //! Raycasts: first hit, all hits and any hit, for one ray or a batch.
 //!
-//! A single ray walks the tree depth first, near children first (the node's
-//! precomputed order along the ray's dominant axis), pruning every node whose
-//! entry `t` is beyond the best hit so far. A batch follows the "batched
-//! incoherent rays" scheme: every live ray of the batch is tested against a
-//! node's lanes at once, the rays that hit a child are gathered into that
-//! child's run, and the recursion continues with that run only. Once a run
-//! is smaller than [`MIN_RAYS_TO_BATCH`], its rays go on one at a time, in
-//! run order, as single rays do (see there for why and the measurements).
-//! Before the walk, rays that share an origin inside an entry are answered
-//! from one point query (`ray_origin`).
+//! A single ray walks the tree depth first, near children first (by the `t`
+//! where it enters them), pruning every node whose entry `t` is beyond the
+//! best hit so far. A batch follows the "batched incoherent rays" scheme:
+//! every live ray of the batch is tested against a node's lanes at once,
+//! the rays that hit a child are gathered into that child's run, and the
+//! recursion continues with that run only, children in the node's
+//! precomputed order along the rays' dominant axis. The batch is first
+//! sorted by dominant direction (axis and sign), and each direction goes
+//! as a batch of its own, so that order is near to far for all its rays.
+//! Once a run is smaller than [`MIN_RAYS_TO_BATCH`], its rays go on one at
+//! a time, in run order, as single rays do (see there for why and the
+//! measurements). Before the walk, rays that share an origin inside an
+//! entry are answered from one point query (`ray_origin`).
 
 use std::ops::{ControlFlow, Range};
 
@@ -133,6 +136,50 @@ pub(crate) struct RayBatchScratch {
     buckets: Vec<Vec<u32>>,
     /// The entries that contain a shared origin, with their boxes.
     pub(super) origin_entries: Vec<(u32, crate::geometry::Aabb)>,
+    /// Scratch for sorting the active rays by direction.
+    grouped: Vec<u32>,
+}
+
+/// Sorts the rays `active` (indices into `tests`) by dominant direction,
+/// stably, and returns the range each of the six directions (axis, sign)
+/// now holds.
+///
+/// A batch visits a node's children in one order for all its rays: the
+/// order along the first ray's dominant axis. For a ray running another way
+/// that order is far to near, so it meets its nearest hit late and walks
+/// subtrees it would have pruned. Within one direction's group the order is
+/// near to far for every ray. Measured in a probe on 1,000 coherent rays
+/// from the clear eye (rays in every direction), width 16: 0.77 -> 0.55 ms
+/// and 17.2 -> 12.4 nodes per ray; incoherent rays unchanged (0.75-0.79
+/// ms). A loop of single rays, each ordering children by its own entry
+/// `t`, still visits fewer (11.6) and took 0.48 ms.
+fn group_by_direction(
+    tests: &[RayTest],
+    active: &mut Vec<u32>,
+    grouped: &mut Vec<u32>,
+) -> [Range<usize>; 6] {
+    let direction = |r: u32| {
+        let (axis, forward) = dominant_axis(tests[r as usize].dir);
+        axis * 2 + forward as usize
+    };
+    let mut counts = [0usize; 6];
+    for &r in active.iter() {
+        counts[direction(r)] += 1;
+    }
+    let mut starts = [0usize; 6];
+    for d in 1..6 {
+        starts[d] = starts[d - 1] + counts[d - 1];
+    }
+    grouped.clear();
+    grouped.resize(active.len(), 0);
+    let mut next = starts;
+    for &r in active.iter() {
+        let d = direction(r);
+        grouped[next[d]] = r;
+        next[d] += 1;
+    }
+    std::mem::swap(active, grouped);
+    std::array::from_fn(|d| starts[d]..next[d])
 }
 
 /// Below this many rays, a run of a batch goes on one ray at a time.
@@ -194,10 +241,9 @@ pub(crate) fn ray_lanes<const W: usize>(
     (mask, entry)
 }
 
-/// The lane visiting order for a ray direction: the node's order along the
-/// ray's dominant axis, forwards when the ray runs up that axis.
+/// The axis along which `dir` runs fastest, and whether it runs up it.
 #[inline]
-fn near_to_far<const W: usize>(node: &Node<W>, dir: [f32; 3]) -> impl Iterator<Item = usize> + '_ {
+fn dominant_axis(dir: [f32; 3]) -> (usize, bool) {
     let abs = dir.map(f32::abs);
     let axis = if abs[0] >= abs[1] && abs[0] >= abs[2] {
         0
@@ -206,8 +252,15 @@ fn near_to_far<const W: usize>(node: &Node<W>, dir: [f32; 3]) -> impl Iterator<I
     } else {
         2
     };
+    (axis, dir[axis] >= 0.0)
+}
+
+/// The lane visiting order for a ray direction: the node's order along the
+/// ray's dominant axis, forwards when the ray runs up that axis.
+#[inline]
+fn near_to_far<const W: usize>(node: &Node<W>, dir: [f32; 3]) -> impl Iterator<Item = usize> + '_ {
+    let (axis, forward) = dominant_axis(dir);
     let order = &node.order[axis][..node.len()];
-    let forward = dir[axis] >= 0.0;
     (0..order.len()).map(move |i| order[if forward { i } else { order.len() - 1 - i }] as usize)
 }
 
@@ -437,11 +490,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             s.buckets.resize_with(height, Vec::new);
         }
         self.answer_shared_origins(mode, ws);
-        let active = std::mem::take(&mut ws.rays.active);
-        // A batch of only invalid or already answered rays has nothing to
-        // traverse with.
-        if !active.is_empty() {
-            self.batch_node(self.root(), &active, 0, mode, ws);
+        let mut active = std::mem::take(&mut ws.rays.active);
+        let groups = group_by_direction(&ws.rays.tests, &mut active, &mut ws.rays.grouped);
+        for group in groups.into_iter().filter(|g| !g.is_empty()) {
+            self.batch_node(self.root(), &active[group], 0, mode, ws);
         }
         ws.rays.active = active;
 
