@@ -143,11 +143,10 @@
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene
 //! (`cargo bench --bench tree -- split/`): 100,000 single inserts take
-//! 111 / 92 / 62 ms with [`SplitStrategy::RStar`] / `Quadratic` /
-//! `Median`, a frame's 10,000 moves 0.69 / 0.77 / 0.71 ms, and 1,000 box
-//! queries on the churned tree 0.75 / 0.89 / 1.04 ms (a bulk-loaded tree of
-//! the same boxes: 0.53 ms). The R* split is
-//! the default: queries run every
+//! 103 / 91 / 70 ms with [`SplitStrategy::RStar`] / `Quadratic` /
+//! `Median`, a frame's 10,000 moves 0.82 / 0.76 / 0.85 ms, and 1,000 box
+//! queries on the churned tree 0.28 / 0.32 / 0.29 ms (a bulk-loaded tree of
+//! the same boxes: 0.21 ms). The R* split is the default: queries run every
 //! frame, and it leaves the best tree.
 //!
 //! ## Node width
