@@ -141,26 +141,30 @@
 //! query work only: answers stay exact.
 //!
 //! The node split ([`TreeSettings::split`]) trades insert time against the
-//! tree's shape. Measured on the standard scene
-//! (`cargo bench --bench tree -- split/`): 100,000 single inserts take
-//! 103 / 91 / 70 ms with [`SplitStrategy::RStar`] / `Quadratic` /
-//! `Median`, a frame's 10,000 moves 0.82 / 0.76 / 0.85 ms, and 1,000 box
-//! queries on the churned tree 0.28 / 0.32 / 0.29 ms (a bulk-loaded tree of
-//! the same boxes: 0.21 ms). The R* split is the default: queries run every
-//! frame, and it leaves the best tree.
+//! tree's shape. Measured on the standard scene at width 16
+//! (`cargo bench --bench tree -- split/`, the second run at width 16 below):
+//! 100,000 single inserts take 103 / 91 / 70 ms with
+//! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
+//! moves 0.82 / 0.76 / 0.85 ms, and 1,000 box queries on the churned tree
+//! 0.28 / 0.32 / 0.29 ms (a bulk-loaded tree of the same boxes: 0.21 ms).
+//! The R* split is the default: queries run every frame, and it leaves the
+//! best tree.
 //!
 //! ## Node width
 //!
-//! `RTree<K, W>` takes 4, 8 or 16 children per node; 16 is the default.
-//! Every lane test runs four lanes at a time, so a wider node costs little
-//! more to test and saves levels: on the standard scene the tree is 5
-//! levels deep instead of 6 (7 after churn). Measured with
-//! `cargo bench --bench tree` and `--bench queries`, width 8 → 16, same
-//! machine, one run each: bulk load 25.6 → 19.0 ms, 100,000 inserts
-//! 108 → 87 ms, a frame's 10,000 moves 0.73 → 0.72 ms, 1,000 box queries
-//! 0.24 → 0.19 ms fresh and 0.39 → 0.26 ms churned, a cull 0.100 →
-//! 0.073 ms, 1,000 incoherent rays 0.87 → 0.74 ms, the cross join 0.37 →
-//! 0.31 ms and the self join 8.2 → 6.6 ms. Before the lane tests took four
+//! `RTree<K, W>` takes 4, 8 or 16 children per node (any multiple of 4 up
+//! to 16); 16 is the default. Box, ray and frustum lane tests run four
+//! lanes at a time, so a wider node costs little more to test and saves
+//! levels: on the standard scene the tree is 5 levels deep instead of 6 (7
+//! after churn). Measured with `cargo bench --bench tree` and
+//! `--bench queries`, one run at width 8 and the next at width 16, same
+//! machine: bulk load 25.6 → 19.0 ms, 100,000 inserts 108 → 87 ms, 1,000
+//! box queries 0.24 → 0.19 ms fresh and 0.39 → 0.26 ms churned, a cull
+//! 0.100 → 0.073 ms, 1,000 incoherent rays 0.87 → 0.74 ms, the cross join
+//! 0.37 → 0.31 ms and the self join 8.2 → 6.6 ms; a frame's 10,000 moves
+//! took 0.73 ms at width 8 and 0.72 and 0.83 ms in two runs at width 16,
+//! within this machine's noise. Sphere and nearest-neighbour queries test
+//! lanes one by one and were not compared. Before the lane tests took four
 //! lanes at a time, width 16 made rays twice as slow, and 8 was the default.
 //! `cargo run --release --example accuracy_cost` compares all three widths.
 //!

@@ -98,7 +98,7 @@ proptest! {
 }
 
 /// Two boxes (keys 0 and 1) among 1,000 distractors far from them.
-fn pair_world(a: Aabb, b: Aabb) -> (RTree<u32, 8>, BruteForce<u32>) {
+fn pair_world<const W: usize>(a: Aabb, b: Aabb) -> (RTree<u32, W>, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(13);
     let mut boxes = vec![a, b];
     while boxes.len() < 1_002 {
@@ -109,16 +109,19 @@ fn pair_world(a: Aabb, b: Aabb) -> (RTree<u32, 8>, BruteForce<u32>) {
         );
         boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
     }
-    let (tree, oracle, _) = build::<8>(&boxes, 0);
+    let (tree, oracle, _) = build::<W>(&boxes, 0);
     (tree, oracle)
 }
 
 /// Whether 0 and 1 pair at distance `d` in `mode`; also checks the whole
 /// answer against the oracle.
+/// At width 8 and at the default width 16, which must agree.
 fn pairs(a: Aabb, b: Aabb, d: f32, mode: JoinMode) -> bool {
-    let (tree, oracle) = pair_world(a, b);
-    let got = tree.self_join(d, mode).unwrap();
+    let (narrow, oracle) = pair_world::<8>(a, b);
+    let got = narrow.self_join(d, mode).unwrap();
     assert_eq!(got, oracle.self_join(d, mode).unwrap());
+    let (wide, _) = pair_world::<16>(a, b);
+    assert_eq!(wide.self_join(d, mode).unwrap(), got);
     got.contains(&(0, 1))
 }
 
@@ -154,7 +157,7 @@ fn touching_and_identical_boxes_pair_at_zero() {
     for mode in MODES {
         assert!(pairs(a, touching, 0.0, mode));
         assert!(pairs(a, corner, 0.0, mode));
-        let (tree, _) = pair_world(a, a);
+        let (tree, _) = pair_world::<16>(a, a);
         let got = tree.self_join(0.0, mode).unwrap();
         assert_eq!(
             got.iter().filter(|p| **p == (0, 1)).count(),
@@ -218,7 +221,7 @@ fn a_pair_the_f64_gap_rounds_into_reach_is_found() {
 
 #[test]
 fn invalid_distances_are_refused() {
-    let (tree, oracle) = pair_world(
+    let (tree, oracle) = pair_world::<16>(
         common::aabb([0.0; 3], [1.0; 3]),
         common::aabb([2.0; 3], [3.0; 3]),
     );

@@ -209,7 +209,7 @@ fn rays_from_inside_stacked_boxes_hit_the_smallest_key_at_zero() {
 }
 
 /// The unit box as key 0 among 1,000 distractors away from it.
-fn unit_world(extra: &[Aabb]) -> (RTree<u32, 8>, BruteForce<u32>) {
+fn unit_world<const W: usize>(extra: &[Aabb]) -> (RTree<u32, W>, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(11);
     let mut boxes = vec![common::aabb([0.0; 3], [1.0; 3])];
     boxes.extend_from_slice(extra);
@@ -223,17 +223,20 @@ fn unit_world(extra: &[Aabb]) -> (RTree<u32, 8>, BruteForce<u32>) {
             boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
         }
     }
-    build::<8>(&boxes)
+    build::<W>(&boxes)
 }
 
 /// Asserts the ray hits key 0 first at `t` (or misses it), and that every
 /// answer, single and batched, equals the oracle's.
+/// Both at width 8 and at the default width 16.
 fn expect(ray: Ray, unit_t: Option<f32>) {
-    let (tree, oracle) = unit_world(&[]);
+    let (narrow, oracle) = unit_world::<8>(&[]);
     let hits = oracle.ray_hits(&ray).unwrap();
     let unit = hits.iter().find(|h| h.key == 0).map(|h| h.t);
     assert_eq!(unit, unit_t, "{ray:?}");
-    check_rays(&tree, &oracle, &[ray]);
+    check_rays(&narrow, &oracle, &[ray]);
+    let (wide, oracle) = unit_world::<16>(&[]);
+    check_rays(&wide, &oracle, &[ray]);
 }
 
 fn ray(o: [f32; 3], d: [f32; 3], max_t: f32) -> Ray {
@@ -294,7 +297,7 @@ fn max_t_exactly_reaching_a_face_hits_and_one_ulp_short_misses() {
 fn point_and_flat_boxes_in_and_across_their_plane() {
     let point = common::aabb([5.0, 5.0, 5.0], [5.0, 5.0, 5.0]);
     let flat = common::aabb([8.0, 8.0, 8.0], [9.0, 9.0, 8.0]);
-    let (tree, oracle) = unit_world(&[point, flat]);
+    let (tree, oracle) = unit_world::<16>(&[point, flat]);
     let cases = [
         ray([0.0, 5.0, 5.0], [1.0, 0.0, 0.0], 10.0), // through the point
         ray([5.0, 5.0, 0.0], [0.0, 0.0, 1.0], 10.0), // through the point along z
@@ -328,7 +331,7 @@ fn subnormal_direction_components_become_zero() {
 
 #[test]
 fn bad_rays_fail_in_their_own_slot_only() {
-    let (tree, oracle) = unit_world(&[]);
+    let (tree, oracle) = unit_world::<16>(&[]);
     let good = ray([-1.0, 0.5, 0.5], [1.0, 0.0, 0.0], 10.0);
     let batch = [
         good,
@@ -381,7 +384,7 @@ fn far_from_the_origin_hits_stay_exact() {
         tiny.min.x, tiny.max.x,
         "the tiny box collapses to a point in x"
     );
-    let (tree, oracle) = unit_world(&[far, tiny]);
+    let (tree, oracle) = unit_world::<16>(&[far, tiny]);
     let at_far = ray([1e7 - 100.0, 0.5, 0.5], [1.0, 0.0, 0.0], f32::INFINITY);
     let at_tiny = ray([0.0, 0.5, 0.5], [1.0, 0.0, 0.0], f32::INFINITY);
     let mut ws = QueryWorkspace::default();

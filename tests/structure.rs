@@ -68,7 +68,7 @@ fn ten_thousand_identical_boxes() {
     tree.validate().unwrap();
     assert_eq!(tree.overlapping(&same).len(), 10_000);
     assert!(
-        tree.height() <= 2 * optimal_height(10_000, 8),
+        tree.height() <= 2 * optimal_height(10_000, RTree::<u32>::WIDTH),
         "height {}",
         tree.height()
     );
@@ -90,7 +90,7 @@ fn sorted_line_and_grid_keep_a_low_tree() {
     }
     line.validate().unwrap();
     assert!(
-        line.height() <= 2 * optimal_height(20_000, 8),
+        line.height() <= 2 * optimal_height(20_000, RTree::<u32>::WIDTH),
         "line height {}",
         line.height()
     );
@@ -108,7 +108,7 @@ fn sorted_line_and_grid_keep_a_low_tree() {
     }
     grid.validate().unwrap();
     assert!(
-        grid.height() <= 2 * optimal_height(27_000, 8),
+        grid.height() <= 2 * optimal_height(27_000, RTree::<u32>::WIDTH),
         "grid height {}",
         grid.height()
     );

@@ -425,12 +425,16 @@ mod tests {
     /// The lane test (four lanes at a time) and the scalar S7 corner tests
     /// agree lane by lane: a lane is alive iff its box passes the
     /// conservative test, and has no plane left iff the frustum contains
-    /// it. Grid values make corners land exactly on planes.
+    /// it. Grid values (signed zeros included) make corners land exactly on
+    /// planes.
     fn lanes_agree_with_the_scalar_predicates<const W: usize>() {
         let mut rng = SceneRng::new(11);
         let mut pick = |grid: bool| {
             if grid {
-                (rng.below(9) as f32 - 4.0) * 0.5
+                match rng.below(10) {
+                    9 => -0.0,
+                    k => (k as f32 - 4.0) * 0.5,
+                }
             } else {
                 rng.range(-4.0, 4.0)
             }

@@ -694,21 +694,23 @@ mod tests {
 
     /// The lane code (four lanes at a time) and the scalar S4
     /// predicate agree bit for bit, on grid values that make slabs touch
-    /// and on arbitrary floats.
-    #[test]
-    fn lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
+    /// (signed zeros included) and on arbitrary floats.
+    fn lanes_agree_with_the_scalar_predicate<const W: usize>() {
         let mut rng = SceneRng::new(5);
         let mut pick = |grid: bool| {
             if grid {
-                (rng.below(9) as f32 - 4.0) * 0.5
+                match rng.below(10) {
+                    9 => -0.0,
+                    k => (k as f32 - 4.0) * 0.5,
+                }
             } else {
                 rng.range(-5.0, 5.0)
             }
         };
         for round in 0..20_000 {
             let grid = round % 2 == 0;
-            let mut node = Node::<8>::empty(0, NIL);
-            let lanes = 1 + round % 8;
+            let mut node = Node::<W>::empty(0, NIL);
+            let lanes = 1 + round % W;
             for lane in 0..lanes {
                 let a = Vec3::new(pick(grid), pick(grid), pick(grid));
                 let b = Vec3::new(pick(grid), pick(grid), pick(grid));
@@ -748,5 +750,12 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
+        lanes_agree_with_the_scalar_predicate::<4>();
+        lanes_agree_with_the_scalar_predicate::<8>();
+        lanes_agree_with_the_scalar_predicate::<16>();
     }
 }

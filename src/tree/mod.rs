@@ -44,8 +44,9 @@ const MAX_WIDTH: usize = 16;
 /// A wide, dynamic R-tree over `(key, box)` entries.
 ///
 /// `K` is the caller's key (an ECS entity, an index, ...): answers report it
-/// and break ties by it. `W` is the node width, 4, 8 or 16 (the default);
-/// see the crate docs ("Node width") for the measurements behind the default.
+/// and break ties by it. `W` is the node width, a multiple of 4 from 4 to 16
+/// (16 is the default; other widths fail to compile); see the crate docs
+/// ("Node width") for the measurements behind the default.
 ///
 /// Each entry keeps its exact box, used by every answer, and an enlarged box
 /// used only by the tree's structure, so that small moves cost O(1)
@@ -120,7 +121,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Minimum fill of every node but the root: 40 % of `W`, as in the R*-tree.
     pub(crate) const MIN_FILL: usize = if W * 2 / 5 < 2 { 2 } else { W * 2 / 5 };
 
-    const WIDTH_OK: () = assert!(W >= MIN_WIDTH && W <= MAX_WIDTH && W <= 32);
+    // Lane tests take four lanes at a time, so the width is a multiple of 4.
+    const WIDTH_OK: () = assert!(W >= MIN_WIDTH && W <= MAX_WIDTH && W.is_multiple_of(4));
 
     /// An empty tree with the given settings (of any supported width `W`).
     pub fn with_settings(settings: TreeSettings) -> Result<Self, SpatialError> {

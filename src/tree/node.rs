@@ -126,8 +126,9 @@ impl<const W: usize> Node<W> {
 
     /// Bit `i` set iff lane `i`'s box overlaps `query` (closed boxes).
     ///
-    /// Four lanes at a time in `glam::Vec4` (SSE2 on x86-64, plain floats
-    /// elsewhere): the six comparisons of the scalar predicate per lane,
+    /// Four lanes at a time in `glam::Vec4` (glam's SIMD backend: SSE2 on
+    /// x86-64, NEON on aarch64, plain floats where it has none): the six
+    /// comparisons of the scalar predicate per lane,
     /// combined and turned into bits with one movemask. The loop over lanes
     /// it replaced was vectorised by the compiler, but turned its bools into
     /// bits slowly: box queries took twice as long with it, a self join 40 %

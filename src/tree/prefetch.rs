@@ -42,7 +42,7 @@ impl<K, const W: usize> RTree<K, W> {
     }
 }
 
-/// Requests every cache line of `value` (four for a node of the default
+/// Requests every cache line of `value` (eight for a node of the default
 /// width, one for a proxy record).
 #[inline(always)]
 fn prefetch_lines<T>(value: &T) {
