@@ -179,7 +179,15 @@ fn invalid_settings_are_refused() {
             ..TreeSettings::default()
         },
         TreeSettings {
-            repack_threshold: 0,
+            repack_fraction: 0.0,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            repack_fraction: f32::NAN,
+            ..TreeSettings::default()
+        },
+        TreeSettings {
+            repack_fraction: 16.5,
             ..TreeSettings::default()
         },
     ];

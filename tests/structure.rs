@@ -211,7 +211,7 @@ fn bulk_load_gives_an_optimal_height_and_optimize_keeps_it_valid() {
 #[test]
 fn optimize_packs_churned_leaves_full_and_frees_the_rest() {
     let settings = TreeSettings {
-        repack_threshold: 1,
+        repack_fraction: f32::MIN_POSITIVE,
         ..TreeSettings::default()
     };
     let mut tree: RTree<u32> = RTree::with_settings(settings).unwrap();

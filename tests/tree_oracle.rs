@@ -194,7 +194,8 @@ fn ops() -> impl Strategy<Value = Vec<(Op, Aabb, Vec3)>> {
 /// Small repack threshold so `optimize` really repacks in short sequences.
 fn eager_settings() -> TreeSettings {
     TreeSettings {
-        repack_threshold: 1,
+        // Repack after every restructuring move.
+        repack_fraction: f32::MIN_POSITIVE,
         ..TreeSettings::default()
     }
 }

@@ -35,9 +35,18 @@ pub struct TreeSettings {
     /// How far, in multiples of the last displacement, the fat box reaches
     /// ahead of a moving entry in its direction of motion. Range `[0, 100]`.
     pub displacement_factor: f32,
-    /// Restructuring moves a node's subtree absorbs before
-    /// [`RTree::optimize`](super::RTree::optimize) repacks it. Range `>= 1`.
-    pub repack_threshold: u32,
+    /// How much churn a level-1 node absorbs before
+    /// [`RTree::optimize`](super::RTree::optimize) repacks it: restructuring
+    /// moves in its subtree, as a fraction of the entries it can hold
+    /// (`W * W`), rounded up, at least one. Range `(0, 16]`.
+    ///
+    /// The default, `0.25`, means 16 moves at width 8 and 64 at width 16.
+    /// Measured on the standard scene: at width 8, 16 moves kept churned box
+    /// queries at 1.40–1.44 × the fresh tree's time against 1.52–1.61 × for
+    /// 64 or 256; at width 16, 64 moves cut a frame's moves (with their
+    /// repairs) from 0.65–0.71 ms to 0.51–0.53 ms against 16, with churned
+    /// queries within the noise (11.0 nodes per query either way).
+    pub repack_fraction: f32,
     /// How an overflowing node divides its entries. Any strategy is valid.
     pub split: SplitStrategy,
 }
@@ -48,7 +57,7 @@ impl Default for TreeSettings {
             margin: 0.1,
             margin_fraction: 0.0,
             displacement_factor: 4.0,
-            repack_threshold: 16,
+            repack_fraction: 0.25,
             split: SplitStrategy::RStar,
         }
     }
@@ -61,12 +70,21 @@ impl TreeSettings {
         if in_range(self.margin, 1e4)
             && in_range(self.margin_fraction, 10.0)
             && in_range(self.displacement_factor, 100.0)
-            && self.repack_threshold >= 1
+            && self.repack_fraction.is_finite()
+            && self.repack_fraction > 0.0
+            && self.repack_fraction <= 16.0
         {
             Ok(())
         } else {
             Err(SpatialError::InvalidSettings)
         }
+    }
+
+    /// Restructuring moves a level-1 node of a width-`width` tree absorbs
+    /// before it is queued for repacking.
+    pub(crate) fn repack_threshold(&self, width: usize) -> u32 {
+        let capacity = (width * width) as f32;
+        ((self.repack_fraction * capacity).ceil() as u32).max(1)
     }
 
     /// The enlarged box for `exact` after a move by `displacement`.
@@ -82,5 +100,28 @@ impl TreeSettings {
             min: exact.min - grow + ahead.min(Vec3::ZERO),
             max: exact.max + grow + ahead.max(Vec3::ZERO),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_repack_threshold_scales_with_a_level_one_node_s_capacity() {
+        let default = TreeSettings::default();
+        assert_eq!(default.repack_threshold(8), 16);
+        assert_eq!(default.repack_threshold(16), 64);
+        let eager = TreeSettings {
+            repack_fraction: f32::MIN_POSITIVE,
+            ..default
+        };
+        assert_eq!(eager.repack_threshold(4), 1);
+        let most = TreeSettings {
+            repack_fraction: 16.0,
+            ..default
+        };
+        assert_eq!(most.repack_threshold(16), 4096);
+        assert!(most.validate().is_ok());
     }
 }

@@ -207,7 +207,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if node == NIL {
             return;
         }
-        let threshold = self.settings.repack_threshold;
+        let threshold = self.settings.repack_threshold(W);
         if self.nodes[node as usize].level != 1 {
             return;
         }
