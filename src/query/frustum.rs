@@ -416,10 +416,9 @@ impl PreparedView {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::HalfSpace;
     use crate::geometry::predicates::{frustum_conservative, frustum_contains, plane_value};
-    use crate::geometry::{Aabb, HalfSpace};
-    use crate::scene::SceneRng;
-    use crate::tree::node::NIL;
+    use crate::tree::node::LaneSamples;
     use glam::Vec3;
 
     /// The lane test (four lanes at a time) and the scalar S7 corner tests
@@ -428,39 +427,18 @@ mod tests {
     /// it. Grid values (signed zeros included) make corners land exactly on
     /// planes.
     fn lanes_agree_with_the_scalar_predicates<const W: usize>() {
-        let mut rng = SceneRng::new(11);
-        let mut pick = |grid: bool| {
-            if grid {
-                match rng.below(10) {
-                    9 => -0.0,
-                    k => (k as f32 - 4.0) * 0.5,
-                }
-            } else {
-                rng.range(-4.0, 4.0)
-            }
-        };
+        let mut samples = LaneSamples::new(11, 4.0);
         let mut checked = 0;
         for round in 0..20_000 {
             let grid = round % 2 == 0;
-            let mut node = Node::<W>::empty(0, NIL);
             let lanes = 1 + round % W;
-            for lane in 0..lanes {
-                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
-                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
-                node.set_lane_box(
-                    lane,
-                    &Aabb {
-                        min: a.min(b),
-                        max: a.max(b),
-                    },
-                );
-            }
-            let eye = Vec3::new(pick(grid), pick(grid), pick(grid));
+            let node = samples.node::<W>(grid, lanes);
+            let eye = samples.point(grid);
             let planes = std::array::from_fn(|i| {
                 if i == 5 && round % 3 == 0 {
                     return HalfSpace::INACTIVE;
                 }
-                let normal = Vec3::new(pick(grid), pick(grid), pick(grid));
+                let normal = samples.point(grid);
                 let offset = if round % 4 == 1 {
                     // Through a lane's corner, in the scalar order of
                     // operations: its value is exactly zero there, and any
@@ -472,7 +450,7 @@ mod tests {
                         Vec3::select(if corner_is_far { far } else { near }, aabb.max, aabb.min);
                     -plane_value(normal, 0.0, eye, corner)
                 } else {
-                    pick(grid) + 2.0
+                    samples.value(grid) + 2.0
                 };
                 HalfSpace { normal, offset }
             });

@@ -687,47 +687,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::Aabb;
     use crate::geometry::predicates::ray_box_entry;
-    use crate::scene::SceneRng;
-    use glam::Vec3;
+    use crate::tree::node::LaneSamples;
 
     /// The lane code (four lanes at a time) and the scalar S4
     /// predicate agree bit for bit, on grid values that make slabs touch
     /// (signed zeros included) and on arbitrary floats.
     fn lanes_agree_with_the_scalar_predicate<const W: usize>() {
-        let mut rng = SceneRng::new(5);
-        let mut pick = |grid: bool| {
-            if grid {
-                match rng.below(10) {
-                    9 => -0.0,
-                    k => (k as f32 - 4.0) * 0.5,
-                }
-            } else {
-                rng.range(-5.0, 5.0)
-            }
-        };
+        let mut samples = LaneSamples::new(5, 5.0);
         for round in 0..20_000 {
             let grid = round % 2 == 0;
-            let mut node = Node::<W>::empty(0, NIL);
-            let lanes = 1 + round % W;
-            for lane in 0..lanes {
-                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
-                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
-                node.set_lane_box(
-                    lane,
-                    &Aabb {
-                        min: a.min(b),
-                        max: a.max(b),
-                    },
-                );
-            }
-            let dir = Vec3::new(pick(grid), pick(grid), pick(grid));
-            let Ok(ray) = Ray::new(
-                Vec3::new(pick(grid), pick(grid), pick(grid)),
-                dir,
-                pick(grid).abs() * 3.0,
-            ) else {
+            let node = samples.node::<W>(grid, 1 + round % W);
+            let dir = samples.point(grid);
+            let Ok(ray) = Ray::new(samples.point(grid), dir, samples.value(grid).abs() * 3.0)
+            else {
                 continue;
             };
             let test = RayTest::new(&ray);

@@ -156,45 +156,73 @@ impl<const W: usize> Node<W> {
     }
 }
 
+/// Random lane contents for the lane tests' bit-for-bit checks against the
+/// scalar predicates (here and in the ray and frustum queries).
+#[cfg(test)]
+pub(crate) struct LaneSamples {
+    rng: crate::scene::SceneRng,
+    range: f32,
+}
+
+#[cfg(test)]
+impl LaneSamples {
+    /// Arbitrary floats are drawn from `(-range, range)`.
+    pub fn new(seed: u64, range: f32) -> Self {
+        LaneSamples {
+            rng: crate::scene::SceneRng::new(seed),
+            range,
+        }
+    }
+
+    /// With `grid`, a half unit from -2 to 2 or -0.0, so faces, slabs and
+    /// planes touch and signed zeros meet; otherwise an arbitrary float.
+    pub fn value(&mut self, grid: bool) -> f32 {
+        if grid {
+            match self.rng.below(10) {
+                9 => -0.0,
+                k => (k as f32 - 4.0) * 0.5,
+            }
+        } else {
+            self.rng.range(-self.range, self.range)
+        }
+    }
+
+    pub fn point(&mut self, grid: bool) -> glam::Vec3 {
+        glam::Vec3::new(self.value(grid), self.value(grid), self.value(grid))
+    }
+
+    pub fn aabb(&mut self, grid: bool) -> Aabb {
+        let (a, b) = (self.point(grid), self.point(grid));
+        Aabb {
+            min: a.min(b),
+            max: a.max(b),
+        }
+    }
+
+    /// A leaf with `lanes` random boxes; the other lanes unused.
+    pub fn node<const W: usize>(&mut self, grid: bool, lanes: usize) -> Node<W> {
+        let mut node = Node::<W>::empty(0, NIL);
+        for lane in 0..lanes {
+            node.set_lane_box(lane, &self.aabb(grid));
+        }
+        node
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::geometry::predicates::boxes_overlap;
-    use crate::scene::SceneRng;
-    use glam::Vec3;
 
     /// `overlap_mask` and the scalar S2 predicate agree lane by lane, on grid
     /// values where faces touch and signed zeros meet, on arbitrary floats,
     /// on infinite queries and on unused (inverted) lanes.
     fn mask_agrees_with_the_scalar_predicate<const W: usize>() {
-        let mut rng = SceneRng::new(7);
-        let mut pick = |grid: bool| {
-            if grid {
-                [-1.0, -0.5, -0.0, 0.0, 0.5, 1.0][rng.below(6)]
-            } else {
-                rng.range(-2.0, 2.0)
-            }
-        };
+        let mut samples = LaneSamples::new(7, 2.0);
         for round in 0..20_000 {
             let grid = round % 2 == 0;
-            let mut node = Node::<W>::empty(0, NIL);
-            for lane in 0..1 + round % W {
-                let a = Vec3::new(pick(grid), pick(grid), pick(grid));
-                let b = Vec3::new(pick(grid), pick(grid), pick(grid));
-                node.set_lane_box(
-                    lane,
-                    &Aabb {
-                        min: a.min(b),
-                        max: a.max(b),
-                    },
-                );
-            }
-            let a = Vec3::new(pick(grid), pick(grid), pick(grid));
-            let b = Vec3::new(pick(grid), pick(grid), pick(grid));
-            let mut query = Aabb {
-                min: a.min(b),
-                max: a.max(b),
-            };
+            let node = samples.node::<W>(grid, 1 + round % W);
+            let mut query = samples.aabb(grid);
             if round % 7 == 0 {
                 query.max.y = f32::INFINITY;
                 query.min.z = f32::NEG_INFINITY;
