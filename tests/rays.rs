@@ -434,7 +434,8 @@ fn batches_of_the_standard_scene_match_single_rays() {
 }
 
 /// Batches big enough that runs of over 1,024 rays are tested together
-/// below the root (the batched path), in every mode, equal to single rays.
+/// (the batched path), in every mode, equal to single rays: among them
+/// 2,000 rays looking down from distinct origins, one direction's group.
 #[test]
 fn large_batches_match_single_rays_in_every_mode() {
     let (mut scene, tree, _) = common::town_tree(20_000, 6);
@@ -444,6 +445,12 @@ fn large_batches_match_single_rays_in_every_mode() {
         rays.extend(scene.coherent_rays());
     }
     rays.extend(scene.incoherent_rays(500));
+    let mut rng = bevy_rtree::scene::SceneRng::new(17);
+    rays.extend((0..2_000).map(|_| {
+        let origin = Vec3::new(rng.range(0.0, 2_000.0), 95.0, rng.range(0.0, 2_000.0));
+        let dir = Vec3::new(rng.range(-0.3, 0.3), -1.0, rng.range(-0.3, 0.3));
+        ray(origin.to_array(), dir.to_array(), 200.0)
+    }));
     let mut ws = QueryWorkspace::default();
     let mut out = RayResults::default();
     let mut all = Vec::new();

@@ -9,9 +9,9 @@
 //! precomputed order along the rays' dominant axis. The batch is first
 //! sorted by dominant direction (axis and sign), and each direction goes
 //! as a batch of its own, so that order is near to far for all its rays.
-//! Once a run is smaller than [`MIN_RAYS_TO_BATCH`], its rays go on one at
-//! a time, in run order, as single rays do (see there for why and the
-//! measurements). Before the walk, rays that share an origin inside an
+//! A direction's group or a run smaller than [`MIN_RAYS_TO_BATCH`] goes on
+//! one ray at a time, in order, as single rays do (see there for why and
+//! the measurements). Before the walk, rays that share an origin inside an
 //! entry are answered from one point query (`ray_origin`).
 
 use std::ops::{ControlFlow, Range};
@@ -149,10 +149,9 @@ pub(crate) struct RayBatchScratch {
 /// that order is far to near, so it meets its nearest hit late and walks
 /// subtrees it would have pruned. Within one direction's group the order is
 /// near to far for every ray. Measured in a probe on 1,000 coherent rays
-/// from the clear eye (rays in every direction), width 16: 0.77 -> 0.55 ms
-/// and 17.2 -> 12.4 nodes per ray; incoherent rays unchanged (0.75-0.79
-/// ms). A loop of single rays, each ordering children by its own entry
-/// `t`, still visits fewer (11.6) and took 0.48 ms.
+/// from the clear eye (rays in every direction), width 16, when every group
+/// was batched from the root: 0.77 -> 0.55 ms and 17.2 -> 12.4 nodes per
+/// ray; incoherent rays unchanged (0.75-0.79 ms).
 fn group_by_direction(
     tests: &[RayTest],
     active: &mut Vec<u32>,
@@ -194,6 +193,10 @@ fn group_by_direction(
 /// batched down to a single ray 1.08 ms for incoherent rays and 0.51 ms for
 /// coherent ones; with 64 as the limit, 0.83 and 0.53 ms; with 1,024, so
 /// that only the root is tested for the whole batch, 0.73 and 0.55 ms.
+/// The root follows the same rule: at width 16, 1,000 coherent rays from
+/// the clear eye took 0.45–0.61 ms with the root tested for each direction's
+/// group and 0.40–0.41 ms ray by ray from the root (a loop of `cast_ray`
+/// calls: 0.36–0.39 ms), in alternating probe runs.
 const MIN_RAYS_TO_BATCH: usize = 1024;
 
 /// Lane mask and entry `t` per lane of one ray against one node: the S4
@@ -492,8 +495,17 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.answer_shared_origins(mode, ws);
         let mut active = std::mem::take(&mut ws.rays.active);
         let groups = group_by_direction(&ws.rays.tests, &mut active, &mut ws.rays.grouped);
-        for group in groups.into_iter().filter(|g| !g.is_empty()) {
-            self.batch_node(self.root(), &active[group], 0, mode, ws);
+        // The root is a run like any other: a group too small to batch
+        // goes ray by ray from the root.
+        for group in groups {
+            let run = &active[group];
+            if run.len() >= MIN_RAYS_TO_BATCH {
+                self.batch_node(self.root(), run, 0, mode, ws);
+            } else {
+                for &r in run {
+                    self.single_from(self.root(), r as usize, mode, ws);
+                }
+            }
         }
         ws.rays.active = active;
 
