@@ -143,10 +143,10 @@
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene at width 16
 //! (`cargo bench --bench tree -- split/`, the README's latest run):
-//! 100,000 single inserts take 90 / 82 / 60 ms with
+//! 100,000 single inserts take 88 / 82 / 59 ms with
 //! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
-//! moves 0.56 / 0.58 / 0.60 ms, and 1,000 box queries on the churned tree
-//! 0.23 / 0.29 / 0.29 ms (a bulk-loaded tree of the same boxes: 0.17 ms).
+//! moves 0.59 / 0.64 / 0.58 ms, and 1,000 box queries on the churned tree
+//! 0.27 / 0.29 / 0.29 ms (a bulk-loaded tree of the same boxes: 0.19 ms).
 //! The R* split is the default: queries run every frame, and it leaves the
 //! best tree.
 //!
@@ -165,7 +165,8 @@
 //! took 0.73 ms at width 8 and 0.72 and 0.83 ms in two runs at width 16,
 //! within this machine's noise (all repacking a level-1 node after 16
 //! restructuring moves; at width 16, [`TreeSettings::repack_fraction`]'s
-//! default now waits for 64, and the moves took 0.58 ms in the next run). Sphere and nearest-neighbour queries test
+//! default now waits for 64, and the moves took 0.57–0.58 ms in the next
+//! two runs). Sphere and nearest-neighbour queries test
 //! lanes one by one and were not compared. Before the lane tests took four
 //! lanes at a time, width 16 made rays twice as slow, and 8 was the default.
 //! `cargo run --release --example accuracy_cost` compares all three widths.
