@@ -446,11 +446,27 @@ fn large_batches_match_single_rays_in_every_mode() {
     }
     rays.extend(scene.incoherent_rays(500));
     let mut rng = bevy_rtree::scene::SceneRng::new(17);
-    rays.extend((0..2_000).map(|_| {
-        let origin = Vec3::new(rng.range(0.0, 2_000.0), 95.0, rng.range(0.0, 2_000.0));
-        let dir = Vec3::new(rng.range(-0.3, 0.3), -1.0, rng.range(-0.3, 0.3));
-        ray(origin.to_array(), dir.to_array(), 200.0)
-    }));
+    let down: Vec<Ray> = (0..2_000)
+        .map(|_| {
+            let origin = Vec3::new(rng.range(0.0, 2_000.0), 95.0, rng.range(0.0, 2_000.0));
+            let dir = Vec3::new(rng.range(-0.3, 0.3), -1.0, rng.range(-0.3, 0.3));
+            ray(origin.to_array(), dir.to_array(), 200.0)
+        })
+        .collect();
+    // Tested together, the downward rays visit the root once, not once per
+    // ray: proof that the batched path ran.
+    let mut ws = QueryWorkspace::default();
+    tree.cast_rays(&down, RayMode::First, &mut ws, &mut RayResults::default());
+    let together = ws.take_stats().nodes_visited;
+    for r in &down {
+        tree.cast_ray(r, &mut ws).unwrap();
+    }
+    let alone = ws.take_stats().nodes_visited;
+    assert!(
+        together + 1_000 < alone,
+        "batched {together} nodes, alone {alone}"
+    );
+    rays.extend(down);
     let mut ws = QueryWorkspace::default();
     let mut out = RayResults::default();
     let mut all = Vec::new();

@@ -192,8 +192,8 @@ fn group_by_direction(
 /// standard scene (1,000 rays per batch, after 90 frames of churn): runs
 /// batched down to a single ray 1.08 ms for incoherent rays and 0.51 ms for
 /// coherent ones; with 64 as the limit, 0.83 and 0.53 ms; with 1,024, so
-/// that only the root is tested for the whole batch, 0.73 and 0.55 ms.
-/// The root follows the same rule: at width 16, 1,000 coherent rays from
+/// that only the root was tested for the whole batch (the root was always
+/// batched then), 0.73 and 0.55 ms. The root now follows the same rule: at width 16, 1,000 coherent rays from
 /// the clear eye took 0.45–0.61 ms with the root tested for each direction's
 /// group and 0.40–0.41 ms ray by ray from the root (a loop of `cast_ray`
 /// calls: 0.36–0.39 ms), in alternating probe runs.
@@ -420,6 +420,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Casts a batch of rays together (the module documentation says how)
     /// and writes slot `i` of `out` for ray `i`. An invalid ray gets its own error; the other
     /// slots are unaffected. Answers equal those of the single-ray calls.
+    /// Fewer than 1,024 rays running one way walk one by one, which
+    /// measured faster than testing them together.
     ///
     /// Keep rays that start at one point next to each other (a camera's
     /// rays from its eye): in first-hit and any-hit modes, eight or more
@@ -495,17 +497,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.answer_shared_origins(mode, ws);
         let mut active = std::mem::take(&mut ws.rays.active);
         let groups = group_by_direction(&ws.rays.tests, &mut active, &mut ws.rays.grouped);
-        // The root is a run like any other: a group too small to batch
-        // goes ray by ray from the root.
+        // The root is a run like any other.
         for group in groups {
-            let run = &active[group];
-            if run.len() >= MIN_RAYS_TO_BATCH {
-                self.batch_node(self.root(), run, 0, mode, ws);
-            } else {
-                for &r in run {
-                    self.single_from(self.root(), r as usize, mode, ws);
-                }
-            }
+            self.walk_run(self.root(), &active[group], 0, mode, ws);
         }
         ws.rays.active = active;
 
@@ -619,15 +613,29 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let dir = s.tests[active[0] as usize].dir;
         for lane in near_to_far(node, dir) {
             let run = &bucket[starts[lane] as usize..next[lane] as usize];
-            if run.len() >= MIN_RAYS_TO_BATCH {
-                self.batch_node(node.child[lane], run, depth + 1, mode, ws);
-            } else {
-                for &r in run {
-                    self.single_from(node.child[lane], r as usize, mode, ws);
-                }
-            }
+            self.walk_run(node.child[lane], run, depth + 1, mode, ws);
         }
         ws.rays.buckets[depth] = bucket;
+    }
+
+    /// The rays `run` through the subtree of `start` (at `depth` below the
+    /// root): together if there are at least [`MIN_RAYS_TO_BATCH`] of
+    /// them, otherwise one by one.
+    fn walk_run(
+        &self,
+        start: u32,
+        run: &[u32],
+        depth: usize,
+        mode: RayMode,
+        ws: &mut QueryWorkspace,
+    ) {
+        if run.len() >= MIN_RAYS_TO_BATCH {
+            self.batch_node(start, run, depth, mode, ws);
+        } else {
+            for &r in run {
+                self.single_from(start, r as usize, mode, ws);
+            }
+        }
     }
 
     /// Ray `r` of a batch through the subtree of `start` on its own, as

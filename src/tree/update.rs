@@ -207,10 +207,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if node == NIL {
             return;
         }
-        let threshold = self.settings.repack_threshold(W);
         if self.nodes[node as usize].level != 1 {
             return;
         }
+        let threshold = self.settings.repack_threshold(W);
         let churn = &mut self.churn[node as usize];
         *churn += 1;
         if *churn == threshold {
