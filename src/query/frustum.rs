@@ -14,7 +14,7 @@ use super::QueryWorkspace;
 use crate::geometry::predicates::frustum_exact_rest;
 use crate::geometry::{Frustum, FrustumSat};
 use crate::tree::RTree;
-use crate::tree::node::Node;
+use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 
 /// How a frustum decides that a box is visible (SEMANTICS S7).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -373,14 +373,14 @@ impl PreparedView {
             // `plane_value` four lanes at a time, same operations in the same
             // order, so the bits agree with the scalar predicate.
             let value = |x: &[f32; W], y: &[f32; W], z: &[f32; W], first: usize| {
-                let four = |row: &[f32; W]| Vec4::from_slice(&row[first..first + 4]);
+                let four = |row: &[f32; W]| four_lanes(row, first);
                 Vec4::splat(n.x) * (four(x) - Vec4::splat(eye.x))
                     + Vec4::splat(n.y) * (four(y) - Vec4::splat(eye.y))
                     + Vec4::splat(n.z) * (four(z) - Vec4::splat(eye.z))
                     + Vec4::splat(plane.offset)
             };
             let mut outside_free = 0u32;
-            for first in (0..W).step_by(4) {
+            for first in (0..W).step_by(LANES_PER_TEST) {
                 let far = value(px, py, pz, first);
                 outside_free |= far.cmpgt(Vec4::ZERO).bitmask() << first;
             }
@@ -389,7 +389,7 @@ impl PreparedView {
                 continue;
             }
             let mut inside = 0u32;
-            for first in (0..W).step_by(4) {
+            for first in (0..W).step_by(LANES_PER_TEST) {
                 let near = value(nx, ny, nz, first);
                 inside |= near.cmpgt(Vec4::ZERO).bitmask() << first;
             }

@@ -22,7 +22,7 @@ use super::QueryWorkspace;
 use crate::geometry::predicates::RayTest;
 use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
-use crate::tree::node::{NIL, Node};
+use crate::tree::node::{LANES_PER_TEST, NIL, Node, four_lanes};
 
 /// One hit: the entry's key and the ray parameter where the ray enters its
 /// box (`0` when the origin is inside or on the box).
@@ -193,10 +193,11 @@ fn group_by_direction(
 /// batched down to a single ray 1.08 ms for incoherent rays and 0.51 ms for
 /// coherent ones; with 64 as the limit, 0.83 and 0.53 ms; with 1,024, so
 /// that only the root was tested for the whole batch (the root was always
-/// batched then), 0.73 and 0.55 ms. The root now follows the same rule: at width 16, 1,000 coherent rays from
-/// the clear eye took 0.45–0.61 ms with the root tested for each direction's
-/// group and 0.40–0.41 ms ray by ray from the root (a loop of `cast_ray`
-/// calls: 0.36–0.39 ms), in alternating probe runs.
+/// batched then), 0.73 and 0.55 ms. The root now follows the same rule: at
+/// width 16, 1,000 coherent rays from the clear eye took 0.45–0.61 ms with
+/// the root tested for each direction's group and 0.40–0.41 ms ray by ray
+/// from the root (a loop of `cast_ray` calls: 0.36–0.39 ms), in alternating
+/// probe runs.
 const MIN_RAYS_TO_BATCH: usize = 1024;
 
 /// Lane mask and entry `t` per lane of one ray against one node: the S4
@@ -216,8 +217,8 @@ pub(crate) fn ray_lanes<const W: usize>(
 ) -> (u32, [f32; W]) {
     let mut entry = [0.0f32; W];
     let mut mask = 0u32;
-    for first in (0..W).step_by(4) {
-        let four = |row: &[f32; W]| Vec4::from_slice(&row[first..first + 4]);
+    for first in (0..W).step_by(LANES_PER_TEST) {
+        let four = |row: &[f32; W]| four_lanes(row, first);
         let mut lo = Vec4::ZERO;
         let mut hi = Vec4::splat(limit);
         let mut slab_ok = BVec4A::splat(true);

@@ -122,7 +122,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub(crate) const MIN_FILL: usize = if W * 2 / 5 < 2 { 2 } else { W * 2 / 5 };
 
     // Lane tests take four lanes at a time, so the width is a multiple of 4.
-    const WIDTH_OK: () = assert!(W >= MIN_WIDTH && W <= MAX_WIDTH && W.is_multiple_of(4));
+    const WIDTH_OK: () =
+        assert!(W >= MIN_WIDTH && W <= MAX_WIDTH && W.is_multiple_of(node::LANES_PER_TEST));
 
     /// An empty tree with the given settings (of any supported width `W`).
     pub fn with_settings(settings: TreeSettings) -> Result<Self, SpatialError> {

@@ -6,6 +6,17 @@ use crate::geometry::Aabb;
 /// "No node" / "no proxy" sentinel for indices.
 pub(crate) const NIL: u32 = u32::MAX;
 
+/// Lanes one `glam::Vec4` lane test covers; node widths are multiples of it.
+pub(crate) const LANES_PER_TEST: usize = 4;
+
+/// Lanes `first..first + LANES_PER_TEST` of one row of a node's bounds
+/// (`min[axis]` or `max[axis]`), for the four-lanes-at-a-time tests of boxes,
+/// rays and frustum planes.
+#[inline(always)]
+pub(crate) fn four_lanes<const W: usize>(row: &[f32; W], first: usize) -> glam::Vec4 {
+    glam::Vec4::from_slice(&row[first..first + LANES_PER_TEST])
+}
+
 /// The `level` of a node that sits on the free list.
 pub(crate) const FREE_LEVEL: u16 = u16::MAX;
 
@@ -142,8 +153,8 @@ impl<const W: usize> Node<W> {
         let q_lo = [query.min.x, query.min.y, query.min.z].map(Vec4::splat);
         let q_hi = [query.max.x, query.max.y, query.max.z].map(Vec4::splat);
         let mut mask = 0u32;
-        for first in (0..W).step_by(4) {
-            let four = |row: &[f32; W]| Vec4::from_slice(&row[first..first + 4]);
+        for first in (0..W).step_by(LANES_PER_TEST) {
+            let four = |row: &[f32; W]| four_lanes(row, first);
             let hit = four(&self.min[0]).cmple(q_hi[0])
                 & four(&self.min[1]).cmple(q_hi[1])
                 & four(&self.min[2]).cmple(q_hi[2])
