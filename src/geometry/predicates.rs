@@ -21,6 +21,9 @@ pub(crate) struct RayTest {
     pub origin: [f32; 3],
     pub dir: [f32; 3],
     pub inv: [f32; 3],
+    /// Whether some direction component is zero: the lane tests take a
+    /// slower path for such a ray.
+    pub has_flat_axis: bool,
 }
 
 impl RayTest {
@@ -32,6 +35,7 @@ impl RayTest {
             origin: ray.origin.to_array(),
             dir,
             inv: dir.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d }),
+            has_flat_axis: dir.contains(&0.0),
         }
     }
 }
