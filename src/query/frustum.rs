@@ -181,8 +181,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         } else {
             (1u32 << node.len()) - 1
         };
+        if node.is_leaf() {
+            return self.cull_leaf(views, mask, node, used, ws, visit);
+        }
         let mut lane_masks = [0u64; W];
-        let mut tested = false;
         for (v, view) in views.iter().enumerate() {
             let byte = (mask >> (8 * v)) & 0xFF;
             if byte & ALIVE == 0 {
@@ -197,15 +199,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 }
                 continue;
             }
-            tested = true;
-            // A leaf's entries need their "fully inside" planes only for the
-            // exact mode's extra test; conservative culling skips computing
-            // them, which is half of every leaf's plane arithmetic.
-            let (alive, remaining) = if node.is_leaf() && view.sat.is_none() {
-                view.test_lanes::<W, false>(node, planes)
-            } else {
-                view.test_lanes::<W, true>(node, planes)
-            };
+            let (alive, remaining) = view.test_lanes::<W, true>(node, planes);
             let mut alive = alive & used;
             while alive != 0 {
                 let lane = alive.trailing_zeros() as usize;
@@ -213,33 +207,70 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 lane_masks[lane] |= (ALIVE | remaining[lane] as u64) << (8 * v);
             }
         }
-        if node.is_leaf() {
-            if tested {
-                ws.stats.entries_tested += node.len() as u64;
+        for (lane, &lane_mask) in lane_masks.iter().enumerate() {
+            if lane_mask != 0 {
+                ws.cull_stack.push((node.child[lane], lane_mask));
             }
-            for (lane, &lane_mask) in lane_masks.iter().enumerate().take(node.len()) {
-                if lane_mask == 0 {
+        }
+        ControlFlow::Continue(())
+    }
+
+    /// A leaf not inside every plane of every view: per view, its entries
+    /// outside none of the planes left (and, in exact mode, with no
+    /// separating axis), in lane order.
+    ///
+    /// View by view, going straight to the visible lanes: building one
+    /// mask per lane for all views first and then walking every lane, as
+    /// internal nodes do, made a cull of the standard scene take 61–63 µs
+    /// instead of 45–46 µs.
+    #[inline]
+    fn cull_leaf<V>(
+        &self,
+        views: &[PreparedView],
+        mask: u64,
+        node: &Node<W>,
+        used: u32,
+        ws: &mut QueryWorkspace,
+        visit: &mut V,
+    ) -> ControlFlow<()>
+    where
+        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
+        let mut tested = false;
+        for (v, view) in views.iter().enumerate() {
+            let byte = (mask >> (8 * v)) & 0xFF;
+            if byte & ALIVE == 0 {
+                continue;
+            }
+            let planes = (byte & 0x3F) as u8;
+            // Only the exact mode's extra test needs to know which planes
+            // an entry is not yet inside of; conservative culling skips
+            // computing them, which is half of every leaf's plane arithmetic.
+            let (alive, remaining) = if planes == 0 {
+                (used, None)
+            } else if view.sat.is_none() {
+                (view.test_lanes::<W, false>(node, planes).0, None)
+            } else {
+                let (alive, remaining) = view.test_lanes::<W, true>(node, planes);
+                (alive, Some(remaining))
+            };
+            tested |= planes != 0;
+            let mut alive = alive & used;
+            while alive != 0 {
+                let lane = alive.trailing_zeros() as usize;
+                alive &= alive - 1;
+                let aabb = node.lane_box(lane);
+                if let Some(remaining) = &remaining
+                    && remaining[lane] != 0
+                    && !view.exact_rest(&aabb)
+                {
                     continue;
                 }
-                let aabb = node.lane_box(lane);
-                let key = self.key_of(node.child[lane]);
-                for (v, view) in views.iter().enumerate() {
-                    let byte = (lane_mask >> (8 * v)) & 0xFF;
-                    if byte & ALIVE == 0 {
-                        continue;
-                    }
-                    if byte & 0x3F != 0 && !view.exact_rest(&aabb) {
-                        continue;
-                    }
-                    visit(v, key, &aabb)?;
-                }
+                visit(v, self.key_of(node.child[lane]), &aabb)?;
             }
-        } else {
-            for (lane, &lane_mask) in lane_masks.iter().enumerate() {
-                if lane_mask != 0 {
-                    ws.cull_stack.push((node.child[lane], lane_mask));
-                }
-            }
+        }
+        if tested {
+            ws.stats.entries_tested += node.len() as u64;
         }
         ControlFlow::Continue(())
     }
