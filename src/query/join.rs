@@ -190,46 +190,104 @@ fn join_lane_pairs<const W: usize>(
     region: &Aabb,
     test: JoinTest,
     ws: &mut QueryWorkspace,
+    emit: impl FnMut(usize, usize) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    if same_node {
+        return self_node_pairs(na, used_lanes(na), test, ws, emit);
+    }
+    let a_lanes = na.overlap_mask(region) & used_lanes(na);
+    let b_lanes = nb.overlap_mask(region) & used_lanes(nb);
+    // The side with fewer lanes near the other goes outside: each of its
+    // lanes costs one test of the other side's groups.
+    if a_lanes.count_ones() <= b_lanes.count_ones() {
+        near_lane_pairs(na, a_lanes, nb, b_lanes, test, ws, |i, j| (i, j), emit)
+    } else {
+        near_lane_pairs(nb, b_lanes, na, a_lanes, test, ws, |j, i| (i, j), emit)
+    }
+}
+
+/// The lane pairs of two distinct nodes: each lane of `outer` among
+/// `outer_lanes` against the lanes of `inner` among `inner_lanes`.
+/// `a_b(outer_lane, inner_lane)` gives the pair as `(lane of na, lane of
+/// nb)`, so either node can go outside.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn near_lane_pairs<const W: usize>(
+    outer: &Node<W>,
+    outer_lanes: u32,
+    inner: &Node<W>,
+    inner_lanes: u32,
+    test: JoinTest,
+    ws: &mut QueryWorkspace,
+    a_b: impl Fn(usize, usize) -> (usize, usize),
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
-    let (a_lanes, b_lanes) = if same_node {
-        (used_lanes(na), used_lanes(nb))
-    } else {
-        (
-            na.overlap_mask(region) & used_lanes(na),
-            nb.overlap_mask(region) & used_lanes(nb),
-        )
-    };
-    let mut lanes = a_lanes;
+    let mut lanes = outer_lanes;
     while lanes != 0 {
-        let i = lanes.trailing_zeros() as usize;
+        let o = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
-        let lane_box = na.lane_box(i);
+        let lane_box = outer.lane_box(o);
         let lane_reach = grow(&lane_box, test.reach);
-        let mut mask = nb.overlap_mask(&lane_reach) & b_lanes;
-        if same_node {
-            mask &= !((2u32 << i) - 1);
-            if !na.is_leaf() {
+        let mut mask = inner.overlap_mask_among(&lane_reach, inner_lanes);
+        if outer.is_leaf() {
+            ws.stats.entries_tested += mask.count_ones() as u64;
+        }
+        while mask != 0 {
+            let n = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let (i, j) = a_b(o, n);
+            if !outer.is_leaf() {
+                let (a, b) = a_b(outer.child[o] as usize, inner.child[n] as usize);
                 ws.join_stack.push(JoinItem {
-                    a: na.child[i],
-                    b: na.child[i],
-                    region: lane_reach,
+                    a: a as u32,
+                    b: b as u32,
+                    region: meet(&lane_reach, &grow(&inner.lane_box(n), test.reach)),
                 });
+            } else if test.accepts(&lane_box, &inner.lane_box(n)) {
+                emit(i, j)?;
             }
         }
-        if na.is_leaf() {
+    }
+    ControlFlow::Continue(())
+}
+
+/// The lane pairs of a node with itself: each unordered pair of lanes once,
+/// and (for an internal node) every child with itself.
+fn self_node_pairs<const W: usize>(
+    node: &Node<W>,
+    lanes: u32,
+    test: JoinTest,
+    ws: &mut QueryWorkspace,
+    mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    let mut outer = lanes;
+    while outer != 0 {
+        let i = outer.trailing_zeros() as usize;
+        outer &= outer - 1;
+        let lane_box = node.lane_box(i);
+        let lane_reach = grow(&lane_box, test.reach);
+        // Lanes above `i` only: each unordered pair once.
+        let above = lanes & !((2u32 << i) - 1);
+        let mut mask = node.overlap_mask_among(&lane_reach, above);
+        if !node.is_leaf() {
+            ws.join_stack.push(JoinItem {
+                a: node.child[i],
+                b: node.child[i],
+                region: lane_reach,
+            });
+        } else {
             ws.stats.entries_tested += mask.count_ones() as u64;
         }
         while mask != 0 {
             let j = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            if !na.is_leaf() {
+            if !node.is_leaf() {
                 ws.join_stack.push(JoinItem {
-                    a: na.child[i],
-                    b: nb.child[j],
-                    region: meet(&lane_reach, &grow(&nb.lane_box(j), test.reach)),
+                    a: node.child[i],
+                    b: node.child[j],
+                    region: meet(&lane_reach, &grow(&node.lane_box(j), test.reach)),
                 });
-            } else if test.accepts(&lane_box, &nb.lane_box(j)) {
+            } else if test.accepts(&lane_box, &node.lane_box(j)) {
                 emit(i, j)?;
             }
         }
