@@ -185,12 +185,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return self.cull_leaf(views, mask, node, used, ws, visit);
         }
         let mut lane_masks = [0u64; W];
-        for (v, view) in views.iter().enumerate() {
-            let byte = (mask >> (8 * v)) & 0xFF;
-            if byte & ALIVE == 0 {
-                continue;
-            }
-            let planes = (byte & 0x3F) as u8;
+        for (v, view, planes) in views_alive(views, mask) {
             if planes == 0 {
                 for (lane, m) in lane_masks.iter_mut().enumerate() {
                     if used & (1 << lane) != 0 {
@@ -237,12 +232,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
     {
         let mut tested = false;
-        for (v, view) in views.iter().enumerate() {
-            let byte = (mask >> (8 * v)) & 0xFF;
-            if byte & ALIVE == 0 {
-                continue;
-            }
-            let planes = (byte & 0x3F) as u8;
+        for (v, view, planes) in views_alive(views, mask) {
             // Only the exact mode's extra test needs to know which planes
             // an entry is not yet inside of; conservative culling skips
             // computing them, which is half of every leaf's plane arithmetic.
@@ -318,6 +308,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.stack = stack;
         flow
     }
+}
+
+/// The views alive in `mask`, each with its index and the planes it still
+/// has to test.
+#[inline]
+fn views_alive(
+    views: &[PreparedView],
+    mask: u64,
+) -> impl Iterator<Item = (usize, &PreparedView, u8)> {
+    views.iter().enumerate().filter_map(move |(v, view)| {
+        let byte = (mask >> (8 * v)) & 0xFF;
+        (byte & ALIVE != 0).then_some((v, view, (byte & 0x3F) as u8))
+    })
 }
 
 /// The views alive in a mask, one bit per view.

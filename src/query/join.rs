@@ -193,102 +193,69 @@ fn join_lane_pairs<const W: usize>(
     emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     if same_node {
-        return self_node_pairs(na, used_lanes(na), test, ws, emit);
+        let lanes = used_lanes(na);
+        // Each lane meets the lanes above it only: each unordered pair once.
+        let above = |i: usize| lanes & !((2u32 << i) - 1);
+        return lane_pairs(na, lanes, na, above, true, test, ws, emit);
     }
     let a_lanes = na.overlap_mask(region) & used_lanes(na);
     let b_lanes = nb.overlap_mask(region) & used_lanes(nb);
     // The side with fewer lanes near the other goes outside: each of its
     // lanes costs one test of the other side's groups.
     if a_lanes.count_ones() <= b_lanes.count_ones() {
-        near_lane_pairs(na, a_lanes, nb, b_lanes, test, ws, |i, j| (i, j), emit)
+        lane_pairs(na, a_lanes, nb, |_| b_lanes, true, test, ws, emit)
     } else {
-        near_lane_pairs(nb, b_lanes, na, a_lanes, test, ws, |j, i| (i, j), emit)
+        lane_pairs(nb, b_lanes, na, |_| a_lanes, false, test, ws, emit)
     }
 }
 
-/// The lane pairs of two distinct nodes: each lane of `outer` among
-/// `outer_lanes` against the lanes of `inner` among `inner_lanes`.
-/// `a_b(outer_lane, inner_lane)` gives the pair as `(lane of na, lane of
-/// nb)`, so either node can go outside.
+/// Each lane `o` of `outer` among `outer_lanes` against the lanes of
+/// `inner` among `inner_lanes(o)` whose boxes are within reach, tested only
+/// in the groups of four that hold such lanes ([`Node::overlap_mask_among`]:
+/// after a join's region test a leaf keeps about two of its lanes, so most
+/// groups hold none). `outer_is_a` tells which node is `na`, so that either
+/// can go outside. With `outer` and `inner` the same internal node, each
+/// child is also paired with itself.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn near_lane_pairs<const W: usize>(
+fn lane_pairs<const W: usize>(
     outer: &Node<W>,
     outer_lanes: u32,
     inner: &Node<W>,
-    inner_lanes: u32,
+    inner_lanes: impl Fn(usize) -> u32,
+    outer_is_a: bool,
     test: JoinTest,
     ws: &mut QueryWorkspace,
-    a_b: impl Fn(usize, usize) -> (usize, usize),
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
+    let a_b = |o: u32, n: u32| if outer_is_a { (o, n) } else { (n, o) };
+    let same_node = std::ptr::eq(outer, inner);
     let mut lanes = outer_lanes;
     while lanes != 0 {
         let o = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
         let lane_box = outer.lane_box(o);
         let lane_reach = grow(&lane_box, test.reach);
-        let mut mask = inner.overlap_mask_among(&lane_reach, inner_lanes);
+        let mut mask = inner.overlap_mask_among(&lane_reach, inner_lanes(o));
         if outer.is_leaf() {
             ws.stats.entries_tested += mask.count_ones() as u64;
+        } else if same_node {
+            ws.join_stack.push(JoinItem {
+                a: outer.child[o],
+                b: outer.child[o],
+                region: lane_reach,
+            });
         }
         while mask != 0 {
             let n = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let (i, j) = a_b(o, n);
             if !outer.is_leaf() {
-                let (a, b) = a_b(outer.child[o] as usize, inner.child[n] as usize);
-                ws.join_stack.push(JoinItem {
-                    a: a as u32,
-                    b: b as u32,
-                    region: meet(&lane_reach, &grow(&inner.lane_box(n), test.reach)),
-                });
+                let (a, b) = a_b(outer.child[o], inner.child[n]);
+                let region = meet(&lane_reach, &grow(&inner.lane_box(n), test.reach));
+                ws.join_stack.push(JoinItem { a, b, region });
             } else if test.accepts(&lane_box, &inner.lane_box(n)) {
-                emit(i, j)?;
-            }
-        }
-    }
-    ControlFlow::Continue(())
-}
-
-/// The lane pairs of a node with itself: each unordered pair of lanes once,
-/// and (for an internal node) every child with itself.
-fn self_node_pairs<const W: usize>(
-    node: &Node<W>,
-    lanes: u32,
-    test: JoinTest,
-    ws: &mut QueryWorkspace,
-    mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
-) -> ControlFlow<()> {
-    let mut outer = lanes;
-    while outer != 0 {
-        let i = outer.trailing_zeros() as usize;
-        outer &= outer - 1;
-        let lane_box = node.lane_box(i);
-        let lane_reach = grow(&lane_box, test.reach);
-        // Lanes above `i` only: each unordered pair once.
-        let above = lanes & !((2u32 << i) - 1);
-        let mut mask = node.overlap_mask_among(&lane_reach, above);
-        if !node.is_leaf() {
-            ws.join_stack.push(JoinItem {
-                a: node.child[i],
-                b: node.child[i],
-                region: lane_reach,
-            });
-        } else {
-            ws.stats.entries_tested += mask.count_ones() as u64;
-        }
-        while mask != 0 {
-            let j = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            if !node.is_leaf() {
-                ws.join_stack.push(JoinItem {
-                    a: node.child[i],
-                    b: node.child[j],
-                    region: meet(&lane_reach, &grow(&node.lane_box(j), test.reach)),
-                });
-            } else if test.accepts(&lane_box, &node.lane_box(j)) {
-                emit(i, j)?;
+                let (i, j) = a_b(o as u32, n as u32);
+                emit(i as usize, j as usize)?;
             }
         }
     }
