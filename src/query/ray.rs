@@ -218,8 +218,34 @@ pub(crate) fn ray_lanes<const W: usize>(
     node: &Node<W>,
 ) -> (u32, [f32; W]) {
     if ray.has_flat_axis {
-        return ray_lanes_with_flat_axis(ray, limit, node);
+        ray_lanes_with_flat_axis(ray, limit, node)
+    } else {
+        lanes_of::<W, false>(ray, limit, node)
     }
+}
+
+/// [`ray_lanes`] for a ray that runs flat along some axis (a zero direction
+/// component), out of line: such rays are rare, and the common path stays
+/// small in every traversal it is inlined into.
+#[inline(never)]
+fn ray_lanes_with_flat_axis<const W: usize>(
+    ray: &RayTest,
+    limit: f32,
+    node: &Node<W>,
+) -> (u32, [f32; W]) {
+    lanes_of::<W, true>(ray, limit, node)
+}
+
+/// The lane test of [`ray_lanes`]. With `FLAT`, an axis the ray runs flat
+/// along is a slab test on the origin, as in the scalar predicate; without,
+/// the ray must have no zero direction component, and the check is
+/// compiled out.
+#[inline(always)]
+fn lanes_of<const W: usize, const FLAT: bool>(
+    ray: &RayTest,
+    limit: f32,
+    node: &Node<W>,
+) -> (u32, [f32; W]) {
     let rows: [(&[f32; W], &[f32; W]); 3] = std::array::from_fn(|axis| {
         if ray.inv[axis] > 0.0 {
             (&node.min[axis], &node.max[axis])
@@ -234,51 +260,27 @@ pub(crate) fn ray_lanes<const W: usize>(
     for first in (0..W).step_by(LANES_PER_TEST) {
         let mut lo = Vec4::ZERO;
         let mut hi = Vec4::splat(limit);
+        let mut slab_ok = BVec4A::splat(true);
         for axis in 0..3 {
+            if FLAT && ray.dir[axis] == 0.0 {
+                let o = origin[axis];
+                let min = four_lanes(&node.min[axis], first);
+                let max = four_lanes(&node.max[axis], first);
+                slab_ok &= !(o.cmplt(min) | o.cmpgt(max));
+                continue;
+            }
             let (near, far) = rows[axis];
             let t0 = (four_lanes(near, first) - origin[axis]) * inv[axis];
             let t1 = (four_lanes(far, first) - origin[axis]) * inv[axis];
             lo = greater_or_keep(t0, lo);
             hi = less_or_keep(t1, hi);
         }
-        mask |= lo.cmple(hi).bitmask() << first;
-        lo.write_to_slice(&mut entry[first..first + LANES_PER_TEST]);
-    }
-    (mask, entry)
-}
-
-/// [`ray_lanes`] for a ray that runs flat along some axis (a zero direction
-/// component): that axis is a slab test on the origin, as in the scalar
-/// predicate.
-#[inline(never)]
-fn ray_lanes_with_flat_axis<const W: usize>(
-    ray: &RayTest,
-    limit: f32,
-    node: &Node<W>,
-) -> (u32, [f32; W]) {
-    let mut entry = [0.0f32; W];
-    let mut mask = 0u32;
-    for first in (0..W).step_by(LANES_PER_TEST) {
-        let four = |row: &[f32; W]| four_lanes(row, first);
-        let mut lo = Vec4::ZERO;
-        let mut hi = Vec4::splat(limit);
-        let mut slab_ok = BVec4A::splat(true);
-        for axis in 0..3 {
-            let o = Vec4::splat(ray.origin[axis]);
-            let (min, max) = (four(&node.min[axis]), four(&node.max[axis]));
-            if ray.dir[axis] == 0.0 {
-                slab_ok &= !(o.cmplt(min) | o.cmpgt(max));
-                continue;
-            }
-            let inv = ray.inv[axis];
-            let (near, far) = if inv > 0.0 { (min, max) } else { (max, min) };
-            let inv = Vec4::splat(inv);
-            let t0 = (near - o) * inv;
-            let t1 = (far - o) * inv;
-            lo = greater_or_keep(t0, lo);
-            hi = less_or_keep(t1, hi);
-        }
-        mask |= (slab_ok & lo.cmple(hi)).bitmask() << first;
+        let hit = if FLAT {
+            slab_ok & lo.cmple(hi)
+        } else {
+            lo.cmple(hi)
+        };
+        mask |= hit.bitmask() << first;
         lo.write_to_slice(&mut entry[first..first + LANES_PER_TEST]);
     }
     (mask, entry)
