@@ -42,7 +42,7 @@ impl<K, const W: usize> RTree<K, W> {
     /// default width): what a move inside its enlarged box writes, and what
     /// a move out of it reads next.
     #[inline(always)]
-    pub(crate) fn prefetch_node_bounds(&self, index: u32) {
+    pub(crate) fn prefetch_leaf_for_move(&self, index: u32) {
         if let Some(node) = self.nodes.get(index as usize) {
             prefetch_lines(&node.min);
             prefetch_lines(&node.max);

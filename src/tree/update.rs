@@ -102,7 +102,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.prefetch_proxy(ahead.index);
             }
             if let Some((ahead, _)) = moves.get(i + LEAF_AHEAD) {
-                self.prefetch_node_bounds(self.proxies[ahead.index as usize].leaf);
+                self.prefetch_leaf_for_move(self.proxies[ahead.index as usize].leaf);
             }
             self.move_proxy(id.index, aabb);
         }
