@@ -3,7 +3,8 @@
 //!
 //! 1. enlarged bounds (`TreeSettings`): absolute margins, margins as a
 //!    fraction of the extent, and the displacement factor: update time
-//!    against the extra candidates queries then test;
+//!    against the extra candidates box queries then test, and the extra
+//!    nodes a self join and incoherent rays then visit;
 //! 2. conservative against exact frustum culling: time against false
 //!    positives;
 //! 3. Chebyshev against Euclidean joins: time against extra pairs;
@@ -58,6 +59,10 @@ const CHURNED_CULL_REPS: usize = 2;
 const BUILD_REPS: usize = 9;
 /// Timed runs of each ray set and of the join per node width.
 const WIDTH_REPS: usize = 15;
+/// Rays per ray set.
+const RAY_COUNT: usize = 1_000;
+/// Timed runs of the self join and the incoherent rays per churned tree.
+const JOIN_RAY_REPS: usize = 5;
 /// Timed runs per frame of each ray set, batched and single, interleaved.
 const RAY_REPS: usize = 3;
 /// The ray oracle tests 2,000 rays against every box; doing so every frame
@@ -89,6 +94,8 @@ trait Kept {
     );
     fn cast_rays_first(&self, rays: &[Ray], ws: &mut QueryWorkspace, out: &mut RayResults<u32>);
     fn cast_ray_first(&self, ray: &Ray, ws: &mut QueryWorkspace) -> Option<RayHit<u32>>;
+    /// All touching or overlapping pairs (d = 0), unsorted.
+    fn self_join_into(&self, ws: &mut QueryWorkspace, out: &mut Vec<(u32, u32)>);
     /// Height and node count.
     fn shape(&self) -> (usize, usize);
     fn validate(&self) -> Result<(), String>;
@@ -100,6 +107,8 @@ struct Index<const W: usize> {
     ids: Vec<ProxyId>,
     /// The first entity of the range the tree holds.
     start: usize,
+    /// A frame's moves, kept to avoid reallocating.
+    moves: Vec<(ProxyId, Aabb)>,
 }
 
 impl<const W: usize> Index<W> {
@@ -109,21 +118,28 @@ impl<const W: usize> Index<W> {
         let ids = tree
             .insert_bulk(range.map(|i| (i as u32, boxes[i])))
             .expect("scene boxes are valid");
-        Index { tree, ids, start }
+        Index {
+            tree,
+            ids,
+            start,
+            moves: Vec::new(),
+        }
     }
 }
 
 impl<const W: usize> Kept for Index<W> {
     fn apply(&mut self, moved: &[u32], boxes: &[Aabb]) -> (f64, f64) {
+        // One batch per frame, as the plugin applies a frame's moves.
         let start = Instant::now();
-        for &i in moved {
+        self.moves.clear();
+        self.moves.extend(moved.iter().filter_map(|&i| {
             let i = i as usize;
-            if let Some(&id) = i.checked_sub(self.start).and_then(|k| self.ids.get(k)) {
-                self.tree
-                    .update(id, boxes[i])
-                    .expect("scene boxes are valid");
-            }
-        }
+            let id = i.checked_sub(self.start).and_then(|k| self.ids.get(k))?;
+            Some((*id, boxes[i]))
+        }));
+        self.tree
+            .update_batch(&self.moves)
+            .expect("scene boxes are valid");
         let updated = Instant::now();
         self.tree.optimize(OPTIMIZE_BUDGET);
         (ms_between(start, updated), ms_since(updated))
@@ -158,6 +174,12 @@ impl<const W: usize> Kept for Index<W> {
 
     fn cast_ray_first(&self, ray: &Ray, ws: &mut QueryWorkspace) -> Option<RayHit<u32>> {
         self.tree.cast_ray(ray, ws).expect("scene rays are valid")
+    }
+
+    fn self_join_into(&self, ws: &mut QueryWorkspace, out: &mut Vec<(u32, u32)>) {
+        self.tree
+            .self_join_into(0.0, JoinMode::Euclidean, ws, out)
+            .expect("a valid distance");
     }
 
     fn shape(&self) -> (usize, usize) {
@@ -227,6 +249,15 @@ enum Knob {
     Width,
 }
 
+/// Time and traversal work of one query on one tree.
+#[derive(Clone, Copy, Default)]
+struct WorkCost {
+    /// Median time.
+    ms: f64,
+    /// Nodes (node pairs, for a join) visited.
+    nodes: u64,
+}
+
 /// Cost of the box-query set on one tree.
 #[derive(Clone, Copy, Default)]
 struct BoxCost {
@@ -256,6 +287,10 @@ struct Contender {
     fresh: BoxCost,
     churned: BoxCost,
     churned_cull_ms: f64,
+    /// Self join (d = 0) on the churned tree.
+    churned_self_join: WorkCost,
+    /// The incoherent ray set on the churned tree.
+    churned_rays: WorkCost,
 }
 
 impl Contender {
@@ -295,7 +330,7 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             settings,
         ));
     }
-    for factor in [0.0f32, 1.0, 16.0] {
+    for factor in [0.0f32, 1.0, 8.0, 16.0, 32.0] {
         let settings = TreeSettings {
             displacement_factor: factor,
             ..d
@@ -340,6 +375,8 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
                 fresh: BoxCost::default(),
                 churned: BoxCost::default(),
                 churned_cull_ms: 0.0,
+                churned_self_join: WorkCost::default(),
+                churned_rays: WorkCost::default(),
             }
         })
         .collect()
@@ -486,6 +523,74 @@ fn measure_box_queries(
     }
     for (cost, t) in costs.iter_mut().zip(&times) {
         cost.ms = median(t);
+    }
+    costs
+}
+
+/// Checks every contender's self join (d = 0) and first hits of `rays`
+/// against the oracle, counts the nodes they visit, then times both
+/// `JOIN_RAY_REPS` times per tree, round robin across trees. These are the
+/// queries that descend the most internal nodes, where fat bounds cost.
+fn measure_churned_joins_and_rays(
+    contenders: &[Contender],
+    rays: &[Ray],
+    oracle: &BruteForce<u32>,
+) -> Vec<[WorkCost; 2]> {
+    let pairs = oracle
+        .self_join(0.0, JoinMode::Euclidean)
+        .expect("a valid distance");
+    let hits: Vec<Option<RayHit<u32>>> = rays
+        .iter()
+        .map(|r| oracle.ray_first(r).expect("valid ray"))
+        .collect();
+    let mut ws = QueryWorkspace::default();
+    let mut results = RayResults::default();
+    let mut out = Vec::new();
+    let mut costs: Vec<[WorkCost; 2]> = contenders
+        .iter()
+        .map(|c| {
+            ws.take_stats();
+            out.clear();
+            c.index.self_join_into(&mut ws, &mut out);
+            let join = ws.take_stats();
+            out.sort_unstable();
+            assert!(
+                out == pairs,
+                "{}: self join differs from the oracle",
+                c.label
+            );
+            c.index.cast_rays_first(rays, &mut ws, &mut results);
+            let ray = ws.take_stats();
+            for (i, hit) in hits.iter().enumerate() {
+                assert_eq!(
+                    results.first(i).expect("valid ray"),
+                    *hit,
+                    "{}: ray differs from the oracle",
+                    c.label
+                );
+            }
+            [join.nodes_visited, ray.nodes_visited].map(|nodes| WorkCost { ms: 0.0, nodes })
+        })
+        .collect();
+    let n = contenders.len();
+    let mut times = vec![[Vec::new(), Vec::new()]; n];
+    for rep in 0..JOIN_RAY_REPS {
+        for k in 0..n {
+            let i = (k + rep) % n;
+            out.clear();
+            let start = Instant::now();
+            contenders[i].index.self_join_into(&mut ws, &mut out);
+            times[i][0].push(ms_since(start));
+            let start = Instant::now();
+            contenders[i]
+                .index
+                .cast_rays_first(rays, &mut ws, &mut results);
+            times[i][1].push(ms_since(start));
+        }
+    }
+    for (cost, t) in costs.iter_mut().zip(&times) {
+        cost[0].ms = median(&t[0]);
+        cost[1].ms = median(&t[1]);
     }
     costs
 }
@@ -651,7 +756,7 @@ fn frame_modes(
         .push(false_positives / exact.max(1.0));
 
     // Rays: batched and single, incoherent then coherent, order alternating.
-    let ray_sets = [scene.incoherent_rays(1_000), scene.coherent_rays()];
+    let ray_sets = [scene.incoherent_rays(RAY_COUNT), scene.coherent_rays()];
     let check_oracle = frame.is_multiple_of(RAY_ORACLE_EVERY) || last;
     for (r, rays) in ray_sets.iter().enumerate() {
         let mut batched = RayResults::default();
@@ -857,6 +962,14 @@ fn main() {
         c.churned_cull_ms = ms;
     }
 
+    progress.say("self joins and incoherent rays on the churned trees");
+    let ray_sets = [scene.incoherent_rays(RAY_COUNT), scene.coherent_rays()];
+    let work = measure_churned_joins_and_rays(&contenders, &ray_sets[0], &oracle);
+    for (c, [join, rays]) in contenders.iter_mut().zip(work) {
+        c.churned_self_join = join;
+        c.churned_rays = rays;
+    }
+
     progress.say("rays and joins per node width");
     let width_trees = WIDTHS.map(|w| {
         contenders
@@ -866,7 +979,6 @@ fn main() {
             .index
             .as_ref()
     });
-    let ray_sets = [scene.incoherent_rays(1_000), scene.coherent_rays()];
     let pairs = oracle_of(scene.boxes(), ranges.0.clone())
         .cross_join(
             &oracle_of(scene.boxes(), ranges.1.clone()),

@@ -9,8 +9,8 @@ use bevy_rtree::scene::TownScene;
 use crate::svg::{Figure, Kind, Panel, Series};
 use crate::{
     BOX_QUERIES, BOX_QUERY_HALF, BUILD_REPS, BoxCost, CHURNED_CULL_REPS, CULL_REPS, Contender,
-    DEFAULT_WIDTH, FrameFigures, Knob, QUERY_REPS, RAY_REPS, SEED, WIDTH_REPS, WIDTHS,
-    WidthFigures, mean, median, min_max,
+    DEFAULT_WIDTH, FrameFigures, JOIN_RAY_REPS, Knob, QUERY_REPS, RAY_COUNT, RAY_REPS, SEED,
+    WIDTH_REPS, WIDTHS, WidthFigures, mean, median, min_max,
 };
 
 /// Everything the tables and plots are made of.
@@ -198,8 +198,8 @@ impl Report<'_> {
         let _ = writeln!(
             s,
             "Each policy is bulk-loaded from the same boxes at width \
-             {DEFAULT_WIDTH} (the default) and lives through the same frames: every \
-             moved entity is `update`d, then `optimize` repairs all pending churn. \
+             {DEFAULT_WIDTH} (the default) and lives through the same frames: each \
+             frame's moves go to one `update_batch`, then `optimize` repairs all pending churn. \
              Settings not varied in a row keep their defaults (absolute margin \
              0.1 m, fraction 0, displacement factor 4), except that the fraction \
              rows set the absolute margin to 0.\n"
@@ -259,21 +259,29 @@ impl Report<'_> {
              (`QueryStats::entries_tested`) per query beyond the oracle's answer \
              count. Nodes: nodes visited per query. Frustum: conservative cull of \
              each measured frame's camera, {CHURNED_CULL_REPS} passes, median, on \
-             the churned trees. Answers are exact in every row: imprecision here \
-             costs work, never correctness.\n",
+             the churned trees. Self join: all touching or overlapping pairs \
+             (d = 0) and the node pairs it visits; rays: {} incoherent rays (first \
+             hit) and the nodes they visit; both on the churned trees, median of \
+             {JOIN_RAY_REPS} runs, trees interleaved. These two descend the most \
+             internal nodes, whose bounds hold the fat boxes. Answers are exact in \
+             every row: imprecision here costs work, never correctness.\n",
             thousands(BOX_QUERIES),
             self.true_answers,
-            self.churn()
+            self.churn(),
+            thousands(RAY_COUNT),
         );
         let _ = writeln!(
             s,
-            "| enlarged bounds | box queries, fresh (ms) | box queries, churned (ms) | extra candidates / query, fresh | extra candidates / query, churned | nodes / query, fresh | nodes / query, churned | frustum cull, churned (ms) |"
+            "| enlarged bounds | box queries, fresh (ms) | box queries, churned (ms) | extra candidates / query, fresh | extra candidates / query, churned | nodes / query, fresh | nodes / query, churned | frustum cull, churned (ms) | self join, churned (ms) | self join node pairs | rays, churned (ms) | nodes / ray |"
         );
-        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(
+            s,
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        );
         for (label, c) in self.bounds_rows() {
             let _ = writeln!(
                 s,
-                "| {label} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                "| {label} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} | {} | {} | {:.2} |",
                 ms(c.fresh.ms),
                 ms(c.churned.ms),
                 c.fresh.extra_per_query,
@@ -281,12 +289,16 @@ impl Report<'_> {
                 c.fresh.nodes_per_query,
                 c.churned.nodes_per_query,
                 ms(c.churned_cull_ms),
+                ms(c.churned_self_join.ms),
+                thousands(c.churned_self_join.nodes as usize),
+                ms(c.churned_rays.ms),
+                c.churned_rays.nodes as f64 / RAY_COUNT as f64,
             );
         }
         let _ = writeln!(
             s,
             "\n![Enlarged bounds: update and query time](accuracy_cost_margin_time.svg)\n\n\
-             ![Enlarged bounds: extra candidates and nodes per box query](accuracy_cost_margin_extra.svg)\n"
+             ![Enlarged bounds: extra candidates and nodes per box query, node pairs per self join](accuracy_cost_margin_extra.svg)\n"
         );
     }
 
@@ -563,10 +575,28 @@ impl Report<'_> {
                     "ms per cull",
                     vec![Series::new("frustum cull", values(&|c| c.churned_cull_ms))],
                 ),
+                panel(
+                    format!("Self join (d = 0), {}", self.churn()),
+                    "ms per join",
+                    vec![Series::new(
+                        "self join",
+                        values(&|c| c.churned_self_join.ms),
+                    )],
+                ),
+                panel(
+                    format!(
+                        "{} incoherent rays (first hit), {}",
+                        thousands(RAY_COUNT),
+                        self.churn()
+                    ),
+                    "ms per set",
+                    vec![Series::new("rays", values(&|c| c.churned_rays.ms))],
+                ),
             ],
         };
         let extra = Figure {
-            title: "Enlarged bounds: traversal work per box query (answers exact)".to_string(),
+            title: "Enlarged bounds: traversal work per box query and self join (answers exact)"
+                .to_string(),
             columns: 1,
             panel_width: 860.0,
             panel_height: 280.0,
@@ -583,6 +613,14 @@ impl Report<'_> {
                     "Nodes visited".to_string(),
                     "nodes per query",
                     fresh_and_churned(&|cost| cost.nodes_per_query),
+                ),
+                panel(
+                    format!("Self join (d = 0): node pairs visited, {}", self.churn()),
+                    "node pairs",
+                    vec![Series::new(
+                        "self join",
+                        values(&|c| c.churned_self_join.nodes as f64),
+                    )],
                 ),
             ],
         };
