@@ -527,22 +527,19 @@ fn measure_box_queries(
     costs
 }
 
-/// Checks every contender's self join (d = 0) and first hits of `rays`
-/// against the oracle, counts the nodes they visit, then times both
+/// Checks every contender's self join (d = 0) against the oracle and its
+/// first hits of `rays` against `hits` (the oracle's), counts the nodes they visit, then times both
 /// `JOIN_RAY_REPS` times per tree, round robin across trees. These are the
 /// queries that descend the most internal nodes, where fat bounds cost.
 fn measure_churned_joins_and_rays(
     contenders: &[Contender],
     rays: &[Ray],
+    hits: &[Option<RayHit<u32>>],
     oracle: &BruteForce<u32>,
 ) -> Vec<[WorkCost; 2]> {
     let pairs = oracle
         .self_join(0.0, JoinMode::Euclidean)
         .expect("a valid distance");
-    let hits: Vec<Option<RayHit<u32>>> = rays
-        .iter()
-        .map(|r| oracle.ray_first(r).expect("valid ray"))
-        .collect();
     let mut ws = QueryWorkspace::default();
     let mut results = RayResults::default();
     let mut out = Vec::new();
@@ -661,17 +658,13 @@ fn measure_width_queries(
     trees: [&dyn Kept; 3],
     joins: &[Box<dyn Joined>],
     ray_sets: &[Vec<Ray>; 2],
-    oracle: &BruteForce<u32>,
+    ray_truth: &[Vec<Option<RayHit<u32>>>; 2],
     pairs: &[(u32, u32)],
 ) -> ([[f64; 2]; 3], [f64; 3]) {
     let mut ws = QueryWorkspace::default();
     let mut results = RayResults::default();
     let mut out = Vec::new();
-    for rays in ray_sets {
-        let expected: Vec<Option<RayHit<u32>>> = rays
-            .iter()
-            .map(|r| oracle.ray_first(r).expect("valid ray"))
-            .collect();
+    for (rays, expected) in ray_sets.iter().zip(ray_truth) {
         for tree in trees {
             tree.cast_rays_first(rays, &mut ws, &mut results);
             for (i, hit) in expected.iter().enumerate() {
@@ -964,7 +957,13 @@ fn main() {
 
     progress.say("self joins and incoherent rays on the churned trees");
     let ray_sets = [scene.incoherent_rays(RAY_COUNT), scene.coherent_rays()];
-    let work = measure_churned_joins_and_rays(&contenders, &ray_sets[0], &oracle);
+    // The oracle's first hits, once for both measurements below.
+    let ray_truth = ray_sets.each_ref().map(|rays| {
+        rays.iter()
+            .map(|r| oracle.ray_first(r).expect("valid ray"))
+            .collect::<Vec<_>>()
+    });
+    let work = measure_churned_joins_and_rays(&contenders, &ray_sets[0], &ray_truth[0], &oracle);
     for (c, [join, rays]) in contenders.iter_mut().zip(work) {
         c.churned_self_join = join;
         c.churned_rays = rays;
@@ -987,7 +986,7 @@ fn main() {
         )
         .expect("a valid distance");
     (widths.rays_ms, widths.join_ms) =
-        measure_width_queries(width_trees, &joins, &ray_sets, &oracle, &pairs);
+        measure_width_queries(width_trees, &joins, &ray_sets, &ray_truth, &pairs);
 
     let report = report::Report {
         count,
