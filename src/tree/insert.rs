@@ -58,37 +58,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     fn choose_path(&mut self, bound: &Aabb, level: u16) -> u32 {
         let mut current = self.root;
         while self.nodes[current as usize].level > level {
-            let lane = self.choose_lane(current, bound);
             let node = &mut self.nodes[current as usize];
+            let lane = node.least_growth_lane(bound);
             let grown = node.lane_box(lane).union(bound);
             node.set_lane_box(lane, &grown);
             current = node.child[lane];
         }
         current
-    }
-
-    /// The lane of `node` whose box needs the least enlargement to contain
-    /// `bound`: least growth of half surface area, then of margin (so flat and
-    /// point boxes still order), then the smallest box. All in `f64`.
-    fn choose_lane(&self, node: u32, bound: &Aabb) -> usize {
-        let node = &self.nodes[node as usize];
-        let mut best = 0;
-        let mut best_cost = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
-        for lane in 0..node.len() {
-            let lane_box = node.lane_box(lane);
-            let grown = lane_box.union(bound);
-            let area = lane_box.half_area();
-            let cost = (
-                grown.half_area() - area,
-                grown.margin() - lane_box.margin(),
-                area,
-            );
-            if cost < best_cost {
-                best_cost = cost;
-                best = lane;
-            }
-        }
-        best
     }
 
     /// Puts `entry` into `node`, splitting the node (and, in turn, its

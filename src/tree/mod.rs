@@ -3,7 +3,8 @@
 //! One operation per file, all as `impl RTree` blocks:
 //! - `node`: the structure-of-arrays node and its lane tests;
 //! - `handle`: stable [`ProxyId`] handles and the per-entry record;
-//! - `insert`, `split`: choose-subtree and R*-style splits;
+//! - `insert`, `choose`, `split`: insertion, choose-subtree (four lanes at
+//!   a time) and R*-style splits;
 //! - `remove`: removal with condensing and reinsertion of orphans;
 //! - `update`: moves, absorbed by enlarged bounds when small;
 //! - `bulk`: bulk loading (median cuts on the widest axis) and rebuilds;
@@ -13,6 +14,7 @@
 //! - `validate`: the invariant checker of SEMANTICS S10.
 
 mod bulk;
+mod choose;
 mod handle;
 mod insert;
 pub(crate) mod node;
