@@ -75,7 +75,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.write_lane(node, len, &entry);
             let n = &mut self.nodes[node as usize];
             n.len += 1;
-            n.refresh_order();
+            n.order_new_lane();
             return node;
         }
         self.split_and_add(node, entry)

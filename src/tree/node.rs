@@ -129,6 +129,29 @@ impl<const W: usize> Node<W> {
         }
     }
 
+    /// Adds the last used lane (`len - 1`, just filled) to `order`: placed
+    /// after the lanes whose centre is not above its own, the others moved
+    /// up one. The rest of the order stays as it was (see `refresh_order`).
+    /// Sorting all lanes again on every insertion into an internal node
+    /// took a tenth of the time of 100,000 single inserts.
+    pub fn order_new_lane(&mut self) {
+        if self.is_leaf() {
+            return;
+        }
+        let new = self.len() - 1;
+        for axis in 0..3 {
+            let centre = |lane: u8| self.min[axis][lane as usize] + self.max[axis][lane as usize];
+            let own = centre(new as u8);
+            let order = &self.order[axis];
+            let at = (0..new)
+                .find(|&i| centre(order[i]).total_cmp(&own).is_gt())
+                .unwrap_or(new);
+            let order = &mut self.order[axis];
+            order.copy_within(at..new, at + 1);
+            order[at] = new as u8;
+        }
+    }
+
     /// The lane holding `child`, if any.
     #[inline]
     pub fn lane_of(&self, child: u32) -> Option<usize> {
@@ -299,5 +322,47 @@ mod tests {
         mask_agrees_with_the_scalar_predicate::<4>();
         mask_agrees_with_the_scalar_predicate::<8>();
         mask_agrees_with_the_scalar_predicate::<16>();
+    }
+
+    /// Lanes added one at a time keep each axis's order sorted by centre,
+    /// as a full `refresh_order` would, on the grid (ties among equal
+    /// centres) and on arbitrary floats.
+    fn lanes_added_one_by_one_stay_in_centre_order<const W: usize>() {
+        let mut samples = LaneSamples::new(11, 100.0);
+        for round in 0..2_000 {
+            let grid = round % 2 == 0;
+            let mut node = Node::<W>::empty(1, NIL);
+            for lane in 0..1 + round % W {
+                node.set_lane_box(lane, &samples.aabb(grid));
+                node.child[lane] = lane as u32;
+                node.len += 1;
+                node.order_new_lane();
+            }
+            let mut sorted = node.clone();
+            sorted.refresh_order();
+            for axis in 0..3 {
+                let centres = |n: &Node<W>| -> Vec<f32> {
+                    n.order[axis][..n.len()]
+                        .iter()
+                        .map(|&l| n.min[axis][l as usize] + n.max[axis][l as usize])
+                        .collect()
+                };
+                assert_eq!(
+                    centres(&node),
+                    centres(&sorted),
+                    "round {round} axis {axis}"
+                );
+                let mut lanes = node.order[axis][..node.len()].to_vec();
+                lanes.sort_unstable();
+                assert_eq!(lanes, (0..node.len() as u8).collect::<Vec<_>>());
+            }
+        }
+    }
+
+    #[test]
+    fn adding_a_lane_keeps_the_children_order_sorted() {
+        lanes_added_one_by_one_stay_in_centre_order::<4>();
+        lanes_added_one_by_one_stay_in_centre_order::<8>();
+        lanes_added_one_by_one_stay_in_centre_order::<16>();
     }
 }
