@@ -58,13 +58,23 @@ pub(super) fn choose_split(
 
 fn rstar_split(entries: &mut [Entry], min_fill: usize) -> usize {
     let n = entries.len();
-    // Sort keys: per axis, by lower then by upper bound (R*: both orders).
+    let mut bounds = [Aabb::INVERTED; MAX_ENTRIES];
+    for (slot, e) in bounds.iter_mut().zip(entries.iter()) {
+        *slot = e.bound;
+    }
+    let bounds = &bounds[..n];
+    // R* looks at the entries in order of their lower and of their upper
+    // bound on each axis; each of the six orders is computed once.
+    let orders: [[Order; 2]; 3] = std::array::from_fn(|axis| {
+        [false, true]
+            .map(|by_upper| order_by(bounds, |b| if by_upper { b.max[axis] } else { b.min[axis] }))
+    });
+
     let mut best_axis = (f64::INFINITY, 0usize);
-    for axis in 0..3 {
+    for (axis, axis_orders) in orders.iter().enumerate() {
         let mut margin_sum = 0.0;
-        for by_upper in [false, true] {
-            sort(entries, axis, by_upper);
-            let (prefix, suffix) = sweeps(entries);
+        for order in axis_orders {
+            let (prefix, suffix) = sweeps(bounds, &order[..n]);
             for cut in min_fill..=n - min_fill {
                 margin_sum += prefix[cut - 1].margin() + suffix[cut].margin();
             }
@@ -75,19 +85,22 @@ fn rstar_split(entries: &mut [Entry], min_fill: usize) -> usize {
     }
 
     let axis = best_axis.1;
-    let mut best = ((f64::INFINITY, f64::INFINITY), false, min_fill);
-    for by_upper in [false, true] {
-        sort(entries, axis, by_upper);
-        let (prefix, suffix) = sweeps(entries);
+    let mut best = ((f64::INFINITY, f64::INFINITY), 0, min_fill);
+    for (side, order) in orders[axis].iter().enumerate() {
+        let (prefix, suffix) = sweeps(bounds, &order[..n]);
         for cut in min_fill..=n - min_fill {
             let (a, b) = (&prefix[cut - 1], &suffix[cut]);
             let cost = (overlap_volume(a, b), a.half_area() + b.half_area());
             if cost < best.0 {
-                best = (cost, by_upper, cut);
+                best = (cost, side, cut);
             }
         }
     }
-    sort(entries, axis, best.1);
+    let ordered: SmallVec<[Entry; MAX_ENTRIES]> = orders[axis][best.1][..n]
+        .iter()
+        .map(|&i| entries[i as usize])
+        .collect();
+    entries.copy_from_slice(&ordered);
     best.2
 }
 
@@ -166,26 +179,46 @@ fn median_split(entries: &mut [Entry]) -> usize {
     entries.len() / 2
 }
 
-fn sort(entries: &mut [Entry], axis: usize, by_upper: bool) {
-    if by_upper {
-        entries.sort_by(|a, b| a.bound.max[axis].total_cmp(&b.bound.max[axis]));
-    } else {
-        entries.sort_by(|a, b| a.bound.min[axis].total_cmp(&b.bound.min[axis]));
+/// The most entries a split divides: a full node of the widest width plus one.
+const MAX_ENTRIES: usize = 17;
+
+/// Entry indices in some order; only the first `n` are used.
+type Order = [u8; MAX_ENTRIES];
+
+/// The indices of `bounds` in ascending order of `key`, ties in index
+/// order: each entry's place is the number of entries before it, counted
+/// without a branch. A split sorts six keys of at most 17 entries; the
+/// insertion sort this replaced mispredicted most of its comparisons and
+/// took an eighth of the time of 100,000 single inserts.
+fn order_by(bounds: &[Aabb], key: impl Fn(&Aabb) -> f32) -> Order {
+    let mut keys = [f32::INFINITY; MAX_ENTRIES];
+    for (k, b) in keys.iter_mut().zip(bounds) {
+        *k = key(b);
     }
+    let mut order = [0u8; MAX_ENTRIES];
+    for i in 0..bounds.len() {
+        let mut place = 0u8;
+        for (j, &other) in keys.iter().enumerate() {
+            place += ((other < keys[i]) | (other == keys[i] && j < i)) as u8;
+        }
+        order[place as usize] = i as u8;
+    }
+    order
 }
 
-/// `prefix[i]` bounds entries `..=i`; `suffix[i]` bounds entries `i..`.
-fn sweeps(entries: &[Entry]) -> ([Aabb; 17], [Aabb; 18]) {
-    let mut prefix = [Aabb::INVERTED; 17];
-    let mut suffix = [Aabb::INVERTED; 18];
+/// Along `order`: `prefix[i]` bounds its entries `..=i`; `suffix[i]`
+/// bounds its entries `i..`.
+fn sweeps(bounds: &[Aabb], order: &[u8]) -> ([Aabb; MAX_ENTRIES], [Aabb; MAX_ENTRIES + 1]) {
+    let mut prefix = [Aabb::INVERTED; MAX_ENTRIES];
+    let mut suffix = [Aabb::INVERTED; MAX_ENTRIES + 1];
     let mut acc = Aabb::INVERTED;
-    for (i, e) in entries.iter().enumerate() {
-        acc = acc.union(&e.bound);
+    for (i, &e) in order.iter().enumerate() {
+        acc = acc.union(&bounds[e as usize]);
         prefix[i] = acc;
     }
     acc = Aabb::INVERTED;
-    for (i, e) in entries.iter().enumerate().rev() {
-        acc = acc.union(&e.bound);
+    for (i, &e) in order.iter().enumerate().rev() {
+        acc = acc.union(&bounds[e as usize]);
         suffix[i] = acc;
     }
     (prefix, suffix)
@@ -221,6 +254,36 @@ mod tests {
             Just(SplitStrategy::Quadratic),
             Just(SplitStrategy::Median),
         ]
+    }
+
+    /// The branch-free order is a stable sort by key, on keys that tie
+    /// (the grid) and on signed zeros.
+    #[test]
+    fn order_by_is_a_stable_sort_by_key() {
+        let mut rng = crate::scene::SceneRng::new(17);
+        for round in 0..5_000 {
+            let n = 1 + round % MAX_ENTRIES;
+            let bounds: Vec<Aabb> = (0..n)
+                .map(|_| {
+                    let v = match rng.below(8) {
+                        7 => -0.0,
+                        k if round % 2 == 0 => k as f32 * 0.5,
+                        _ => rng.range(-1e3, 1e3),
+                    };
+                    Aabb {
+                        min: Vec3::splat(v),
+                        max: Vec3::splat(v),
+                    }
+                })
+                .collect();
+            let order = order_by(&bounds, |b| b.min.x);
+            let mut expected: Vec<u8> = (0..n as u8).collect();
+            expected.sort_by(|&a, &b| {
+                let (ka, kb) = (bounds[a as usize].min.x, bounds[b as usize].min.x);
+                ka.partial_cmp(&kb).unwrap()
+            });
+            assert_eq!(&order[..n], &expected[..], "round {round}");
+        }
     }
 
     proptest! {
