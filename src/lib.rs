@@ -165,8 +165,8 @@
 //! took 0.73 ms at width 8 and 0.72 and 0.83 ms in two runs at width 16,
 //! within this machine's noise (all repacking a level-1 node after 16
 //! restructuring moves; at width 16, [`TreeSettings::repack_fraction`]'s
-//! default later waited for 64, and the moves took 0.57–0.58 ms in the next
-//! two runs; it now waits for 256). Sphere and nearest-neighbour queries test
+//! default now waits for 64, and the moves took 0.57–0.58 ms in the next
+//! two runs). Sphere and nearest-neighbour queries test
 //! lanes one by one and were not compared. Before the lane tests took four
 //! lanes at a time, width 16 made rays twice as slow, and 8 was the default.
 //! `cargo run --release --example accuracy_cost` compares all three widths.

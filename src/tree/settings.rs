@@ -46,18 +46,18 @@ pub struct TreeSettings {
     /// moves in its subtree, as a fraction of the entries it can hold
     /// (`W * W`), rounded up, at least one. Range `(0, 16]`.
     ///
-    /// The default, `1.0`, means 256 moves at width 16 (64 at width 8).
-    /// Measured at width 16 on the standard scene
-    /// (`cargo bench --bench tree`, two alternating runs per setting):
-    /// against `0.25` (64 moves), a frame's moves with their repairs took
-    /// 0.419–0.428 ms instead of 0.437–0.472 ms (1.6 repacks per frame
-    /// instead of 5.7), and churned box queries visited the same 11.0 nodes
-    /// per query and tested 59.4 entries instead of 62.5. Followed over
-    /// 4,800 frames, the churned tree's nodes per box query stayed within
-    /// 1.15–1.17 × the fresh tree's for `0.25`, `0.5` and `1.0` alike.
-    /// At width 8, an earlier measurement found 16 moves (`0.25`) kept
-    /// churned box queries at 1.40–1.44 × the fresh tree's time against
-    /// 1.52–1.61 × for 64 or 256: set `0.25` there.
+    /// The default, `0.25`, means 16 moves at width 8 and 64 at width 16.
+    /// Measured on the standard scene: at width 8, 16 moves kept churned box
+    /// queries at 1.40–1.44 × the fresh tree's time against 1.52–1.61 × for
+    /// 64 or 256; at width 16, 64 moves cut a frame's moves (with their
+    /// repairs) from 0.65–0.71 ms to 0.51–0.53 ms against 16, with churned
+    /// queries within the noise (11.0 nodes per query either way).
+    /// Waiting for 256 moves (`1.0`) made a frame's moves 4–11 % cheaper
+    /// in the tree bench (1.6 instead of 5.7 repacks per frame), but the
+    /// churned tree's self join visited 7–9 % more node pairs (58,615
+    /// against 54,706 after 600 frames, 62,259 against 57,324 after
+    /// 4,000), about 0.35 ms more per join against 0.02–0.05 ms saved on
+    /// the moves, and a cull 4–6 % more nodes: the default stays `0.25`.
     pub repack_fraction: f32,
     /// How an overflowing node divides its entries. Any strategy is valid.
     pub split: SplitStrategy,
@@ -69,7 +69,7 @@ impl Default for TreeSettings {
             margin: 0.1,
             margin_fraction: 0.0,
             displacement_factor: 4.0,
-            repack_fraction: 1.0,
+            repack_fraction: 0.25,
             split: SplitStrategy::RStar,
         }
     }
@@ -122,13 +122,8 @@ mod tests {
     #[test]
     fn the_repack_threshold_scales_with_a_level_one_node_s_capacity() {
         let default = TreeSettings::default();
-        assert_eq!(default.repack_threshold(8), 64);
-        assert_eq!(default.repack_threshold(16), 256);
-        let quarter = TreeSettings {
-            repack_fraction: 0.25,
-            ..default
-        };
-        assert_eq!(quarter.repack_threshold(8), 16);
+        assert_eq!(default.repack_threshold(8), 16);
+        assert_eq!(default.repack_threshold(16), 64);
         let eager = TreeSettings {
             repack_fraction: f32::MIN_POSITIVE,
             ..default
