@@ -246,6 +246,8 @@ enum Knob {
     Margin,
     Fraction,
     Displacement,
+    /// How much churn a level-1 node absorbs before `optimize` repacks it.
+    Repack,
     Width,
 }
 
@@ -299,6 +301,12 @@ impl Contender {
     }
 }
 
+/// Restructuring moves a level-1 node absorbs before it is repacked, at
+/// the default width (`TreeSettings::repack_fraction` of its capacity).
+fn repack_moves(settings: &TreeSettings) -> u32 {
+    (settings.repack_fraction * (DEFAULT_WIDTH * DEFAULT_WIDTH) as f32).ceil() as u32
+}
+
 /// The contenders: every bounds policy at the default width, then the other
 /// widths with default settings (the default width with default settings is
 /// the margin 0.1 row).
@@ -340,6 +348,20 @@ fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             Knob::Displacement,
             label,
             format!("x{factor}"),
+            DEFAULT_WIDTH,
+            settings,
+        ));
+    }
+    for fraction in [0.0625f32, 1.0] {
+        let settings = TreeSettings {
+            repack_fraction: fraction,
+            ..d
+        };
+        let moves = repack_moves(&settings);
+        specs.push((
+            Knob::Repack,
+            format!("margin 0.1 m, repack after {moves} moves"),
+            moves.to_string(),
             DEFAULT_WIDTH,
             settings,
         ));

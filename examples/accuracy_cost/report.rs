@@ -10,7 +10,7 @@ use crate::svg::{Figure, Kind, Panel, Series};
 use crate::{
     BOX_QUERIES, BOX_QUERY_HALF, BUILD_REPS, BoxCost, CHURNED_CULL_REPS, CULL_REPS, Contender,
     DEFAULT_WIDTH, FrameFigures, JOIN_RAY_REPS, Knob, QUERY_REPS, RAY_COUNT, RAY_REPS, SEED,
-    WIDTH_REPS, WIDTHS, WidthFigures, mean, median, min_max,
+    WIDTH_REPS, WIDTHS, WidthFigures, mean, median, min_max, repack_moves,
 };
 
 /// Everything the tables and plots are made of.
@@ -201,8 +201,11 @@ impl Report<'_> {
              {DEFAULT_WIDTH} (the default) and lives through the same frames: each \
              frame's moves go to one `update_batch`, then `optimize` repairs all pending churn. \
              Settings not varied in a row keep their defaults (absolute margin \
-             0.1 m, fraction 0, displacement factor 4), except that the fraction \
-             rows set the absolute margin to 0.\n"
+             0.1 m, fraction 0, displacement factor 4, a level-1 node repacked \
+             after 64 restructuring moves), except that the fraction rows set \
+             the absolute margin to 0. The repack rows vary how much churn a \
+             level-1 node absorbs before `optimize` re-tiles its leaves \
+             (`TreeSettings::repack_fraction`).\n"
         );
         let _ = writeln!(s, "### Update side\n");
         let _ = writeln!(
@@ -498,8 +501,9 @@ impl Report<'_> {
 
     fn bounds_figures(&self) -> [Figure; 2] {
         // One categorical x axis for every bounds policy: absolute margins,
-        // then fractions, then displacement factors. The default tree appears
-        // in the first group and again as x4 in the last, where it belongs.
+        // then fractions, then displacement factors, then repack thresholds.
+        // The default tree appears in the first group and again in the last
+        // two, where its displacement factor and threshold belong.
         let mut bounds: Vec<&Contender> = Vec::new();
         let mut ticks: Vec<String> = Vec::new();
         let mut groups = Vec::new();
@@ -507,16 +511,25 @@ impl Report<'_> {
             (Knob::Margin, "margin (m)"),
             (Knob::Fraction, "fraction of extent"),
             (Knob::Displacement, "displacement factor"),
+            (Knob::Repack, "repack (moves)"),
         ] {
             let mut members: Vec<(&Contender, String)> =
                 self.by_knob(knob).map(|c| (c, c.tick.clone())).collect();
+            let d = self.default();
             if knob == Knob::Displacement {
-                let d = self.default();
                 members.push((d, format!("x{}", d.settings.displacement_factor)));
                 members.sort_by(|a, b| {
                     a.0.settings
                         .displacement_factor
                         .total_cmp(&b.0.settings.displacement_factor)
+                });
+            }
+            if knob == Knob::Repack {
+                members.push((d, repack_moves(&d.settings).to_string()));
+                members.sort_by(|a, b| {
+                    a.0.settings
+                        .repack_fraction
+                        .total_cmp(&b.0.settings.repack_fraction)
                 });
             }
             groups.push((name.to_string(), members.len()));
