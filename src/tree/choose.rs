@@ -4,8 +4,9 @@
 //! smallest: the classic R-tree heuristic, computed four lanes at a time.
 //!
 //! Surface growth is not taken as `area(grown) - area(lane)`: in `f32` that
-//! difference cancels (a 2,000 m lane's half area is about 4·10⁶ m², whose
-//! `f32` spacing is 0.25 m², more than a small box adds). Instead, with `e`
+//! difference cancels (a lane spanning the standard scene's 2000 × 100 ×
+//! 2000 m world has a half area of 4.4·10⁶ m², whose `f32` spacing is
+//! 0.5 m², more than a small box may add). Instead, with `e`
 //! the lane's extent and `g` how far the bound sticks out of the lane per
 //! axis (both `>= 0`), the growth is the sum of the terms that the union
 //! adds, `e_x·g_y + g_x·e_y + g_x·g_y` over the three pairs of axes, all
