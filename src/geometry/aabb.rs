@@ -1,6 +1,6 @@
 //! Axis-aligned boxes (SEMANTICS S0, S1).
 
-use glam::{Affine3A, Vec3};
+use glam::{Affine3A, Vec3, Vec3A};
 
 use super::SpatialError;
 
@@ -72,13 +72,12 @@ impl Aabb {
     /// Whether the box is valid as an entry or query (see the type docs).
     #[inline]
     pub fn is_valid(&self) -> bool {
-        let bound = Vec3::splat(MAX_COORD);
-        // Written with `<=` on finite values only: NaN fails every comparison.
-        self.min.is_finite()
-            && self.max.is_finite()
-            && self.min.cmple(self.max).all()
-            && self.min.abs().cmple(bound).all()
-            && self.max.abs().cmple(bound).all()
+        // NaN fails every comparison and an infinity exceeds the bound, so
+        // these three tests also reject every non-finite coordinate. In
+        // `Vec3A`, without a branch: a batch of moves checks every box.
+        let bound = Vec3A::splat(MAX_COORD);
+        let (min, max) = (Vec3A::from(self.min), Vec3A::from(self.max));
+        (min.cmple(max) & min.abs().cmple(bound) & max.abs().cmple(bound)).all()
     }
 
     /// `Ok(())` when [`Aabb::is_valid`], else [`SpatialError::InvalidBox`].
@@ -164,7 +163,7 @@ impl Aabb {
     ///
     /// ```
     /// use bevy_rtree::Aabb;
-    /// use glam::{Affine3A, Vec3};
+    /// use glam::{Affine3A, Vec3, Vec3A};
     ///
     /// let local = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?;
     /// let world = local.transformed(&Affine3A::from_translation(Vec3::X * 10.0))?;
