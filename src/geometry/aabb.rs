@@ -163,7 +163,7 @@ impl Aabb {
     ///
     /// ```
     /// use bevy_rtree::Aabb;
-    /// use glam::{Affine3A, Vec3, Vec3A};
+    /// use glam::{Affine3A, Vec3};
     ///
     /// let local = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?;
     /// let world = local.transformed(&Affine3A::from_translation(Vec3::X * 10.0))?;
@@ -193,5 +193,44 @@ impl Aabb {
         let min = (world_center - world_half).to_array().map(f32::next_down);
         let max = (world_center + world_half).to_array().map(f32::next_up);
         Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `is_valid` against the rule spelled out coordinate by coordinate
+    /// (finite, within `MAX_COORD`, `min <= max`), over every combination
+    /// of values at and around the limits, NaN and both infinities.
+    #[test]
+    fn validity_matches_the_rule_on_every_special_value() {
+        let values = [
+            0.0,
+            -0.0,
+            1.0,
+            MAX_COORD,
+            -MAX_COORD,
+            MAX_COORD.next_up(),
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        let rule = |min: [f32; 3], max: [f32; 3]| {
+            (0..3).all(|a| {
+                let ok = |v: f32| v.is_finite() && v.abs() <= MAX_COORD;
+                ok(min[a]) && ok(max[a]) && min[a] <= max[a]
+            })
+        };
+        let n = values.len();
+        for code in 0..n.pow(6) {
+            let pick = |slot: u32| values[code / n.pow(slot) % n];
+            let (min, max) = ([pick(0), pick(1), pick(2)], [pick(3), pick(4), pick(5)]);
+            let aabb = Aabb {
+                min: Vec3::from(min),
+                max: Vec3::from(max),
+            };
+            assert_eq!(aabb.is_valid(), rule(min, max), "{min:?} {max:?}");
+        }
     }
 }
