@@ -143,10 +143,10 @@
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene at width 16
 //! (`cargo bench --bench tree -- split/`, the README's latest run):
-//! 100,000 single inserts take 88 / 82 / 59 ms with
+//! 100,000 single inserts take 66 / 70 / 44 ms with
 //! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
-//! moves 0.59 / 0.64 / 0.58 ms, and 1,000 box queries on the churned tree
-//! 0.27 / 0.29 / 0.29 ms (a bulk-loaded tree of the same boxes: 0.19 ms).
+//! moves 0.49 / 0.48 / 0.46 ms, and 1,000 box queries on the churned tree
+//! 0.25 / 0.30 / 0.28 ms (a bulk-loaded tree of the same boxes: 0.20 ms).
 //! The R* split is the default: queries run every frame, and it leaves the
 //! best tree.
 //!

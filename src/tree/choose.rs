@@ -106,8 +106,7 @@ mod tests {
         let mut samples = LaneSamples::new(seed, 1000.0);
         for round in 0..2000 {
             let len = 1 + round % W;
-            let mut node: Node<W> = samples.node(grid, len);
-            node.len = len as u16;
+            let node: Node<W> = samples.node(grid, len);
             let bound = samples.aabb(grid);
             let chosen = node.least_growth_lane(&bound);
             assert!(chosen < len);

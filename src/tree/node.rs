@@ -273,12 +273,14 @@ impl LaneSamples {
         }
     }
 
-    /// A leaf with `lanes` random boxes; the other lanes unused.
+    /// A leaf with `lanes` random boxes in its first lanes (and `len` to
+    /// match); the other lanes unused.
     pub fn node<const W: usize>(&mut self, grid: bool, lanes: usize) -> Node<W> {
         let mut node = Node::<W>::empty(0, NIL);
         for lane in 0..lanes {
             node.set_lane_box(lane, &self.aabb(grid));
         }
+        node.len = lanes as u16;
         node
     }
 }
