@@ -14,6 +14,8 @@ mod overlap;
 #[cfg(feature = "parallel")]
 mod parallel;
 mod ray;
+#[cfg(target_arch = "x86_64")]
+mod ray_avx;
 mod ray_origin;
 mod sphere;
 mod workspace;

@@ -420,9 +420,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// run; always inlined, so that each caller's `visit` is compiled into
     /// the loop. (The batch's own earlier copy of this walk, which re-read
     /// the ray's state at every node and matched on the mode at every hit,
-    /// made batched rays about 10 % slower than single ones.)
+    /// made batched rays about 10 % slower than single ones.) `lanes` is
+    /// the lane test: [`ray_lanes`], or its AVX twin where `walk_one`
+    /// (in `ray_avx`) finds the processor has AVX.
     #[inline(always)]
-    fn walk_one<F>(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn walk_with<F, L>(
         &self,
         start: u32,
         test: &RayTest,
@@ -430,9 +433,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         stack: &mut Vec<(u32, f32)>,
         stats: &mut crate::tree::QueryStats,
         mut visit: F,
+        lanes: L,
     ) -> f32
     where
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
+        L: Fn(&RayTest, f32, &Node<W>) -> (u32, [f32; W]),
     {
         stack.clear();
         stack.push((start, 0.0));
@@ -442,7 +447,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             let node = self.node(index);
             stats.nodes_visited += 1;
-            let (mask, lane_t) = ray_lanes(test, limit, node);
+            let (mask, lane_t) = lanes(test, limit, node);
             if node.is_leaf() {
                 stats.entries_tested += node.len() as u64;
                 let mut hits = mask;
@@ -462,6 +467,25 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
         }
         limit
+    }
+
+    /// The single-ray walk on the four-lane test, where the AVX one in
+    /// `ray_avx` is not compiled.
+    #[cfg(not(target_arch = "x86_64"))]
+    #[inline(always)]
+    pub(super) fn walk_one<F>(
+        &self,
+        start: u32,
+        test: &RayTest,
+        limit: f32,
+        stack: &mut Vec<(u32, f32)>,
+        stats: &mut crate::tree::QueryStats,
+        visit: F,
+    ) -> f32
+    where
+        F: FnMut(u32, f32) -> ControlFlow<(), f32>,
+    {
+        self.walk_with(start, test, limit, stack, stats, visit, ray_lanes::<W>)
     }
 
     /// The first hit of one ray: the smallest `(t, key)`.

@@ -1,0 +1,236 @@
+//! The ray lane test eight lanes at a time, on processors with AVX.
+//!
+//! The default x86-64 target assumes SSE2 only, so [`ray_lanes`] tests four
+//! lanes per instruction. Nearly every x86-64 processor a game runs on has
+//! AVX, which tests eight: the single-ray walk is compiled a second time
+//! with AVX enabled, and [`walk_is_avx`] chooses it at run time. Measured
+//! on the standard scene, one `cast_ray` per ray, alternating builds in a
+//! probe: 1,000 incoherent rays 0.442–0.452 → 0.396–0.421 ms, 1,000
+//! coherent rays from the clear eye 0.220–0.221 → 0.195–0.199 ms, with the
+//! same answers bit for bit.
+//!
+//! The test performs the same operations in the same order as
+//! [`ray_lanes`], so it agrees with the scalar predicate bit for bit (a unit
+//! test holds it to that). It covers rays with no zero direction component;
+//! a ray that runs flat along an axis keeps the four-lane walk.
+//!
+//! This file holds the crate's second `unsafe` block (and its unit test a
+//! third): calling a function compiled for AVX is `unsafe` because on a
+//! processor without AVX it would execute instructions the processor lacks;
+//! the call is made only after the standard library's run-time check has
+//! found AVX.
+//!
+//! [`ray_lanes`]: super::ray::ray_lanes
+
+use std::arch::x86_64::{
+    __m256, _CMP_LE_OQ, _mm256_castps256_ps128, _mm256_cmp_ps, _mm256_extractf128_ps,
+    _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps, _mm256_set_m128,
+    _mm256_set1_ps, _mm256_setzero_ps, _mm256_sub_ps,
+};
+
+use std::ops::ControlFlow;
+
+use glam::Vec4;
+
+use super::ray::ray_lanes;
+use crate::geometry::predicates::RayTest;
+use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
+use crate::tree::{QueryStats, RTree};
+
+/// Lanes one AVX test covers.
+const LANES_PER_AVX_TEST: usize = 2 * LANES_PER_TEST;
+
+/// Whether the single-ray walk of `ray` through nodes `W` wide runs on the
+/// AVX lane test: the processor has AVX, the width is a multiple of eight
+/// and the ray has no zero direction component. The standard library
+/// caches the processor check, so this costs a load and a few compares.
+#[inline]
+pub(super) fn walk_is_avx<const W: usize>(ray: &RayTest) -> bool {
+    W.is_multiple_of(LANES_PER_AVX_TEST)
+        && !ray.has_flat_axis
+        && std::is_x86_feature_detected!("avx")
+}
+
+/// Lanes `first..first + 8` of a row as one AVX register.
+#[target_feature(enable = "avx")]
+#[inline]
+fn eight_lanes<const W: usize>(row: &[f32; W], first: usize) -> __m256 {
+    let low = four_lanes(row, first).into();
+    let high = four_lanes(row, first + LANES_PER_TEST).into();
+    _mm256_set_m128(high, low)
+}
+
+/// [`super::ray::ray_lanes`] for a ray with no zero direction component,
+/// eight lanes at a time. `W` must be a multiple of eight.
+#[target_feature(enable = "avx")]
+#[inline]
+pub(super) fn avx_ray_lanes<const W: usize>(
+    ray: &RayTest,
+    limit: f32,
+    node: &Node<W>,
+) -> (u32, [f32; W]) {
+    // Not `array::from_fn`: its closure would not be compiled for AVX and
+    // stayed a call.
+    let row = |axis: usize| {
+        if ray.inv[axis] > 0.0 {
+            (&node.min[axis], &node.max[axis])
+        } else {
+            (&node.max[axis], &node.min[axis])
+        }
+    };
+    let rows = [row(0), row(1), row(2)];
+    let mut entry = [0.0f32; W];
+    let mut mask = 0u32;
+    for first in (0..W).step_by(LANES_PER_AVX_TEST) {
+        let mut lo = _mm256_setzero_ps();
+        let mut hi = _mm256_set1_ps(limit);
+        for (axis, &(near, far)) in rows.iter().enumerate() {
+            let origin = _mm256_set1_ps(ray.origin[axis]);
+            let inv = _mm256_set1_ps(ray.inv[axis]);
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(eight_lanes(near, first), origin), inv);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(eight_lanes(far, first), origin), inv);
+            // `vmaxps t0, lo` is `t0 > lo ? t0 : lo`, as `maxps` is (see
+            // `greater_or_keep`): a NaN `t` keeps the bound.
+            lo = _mm256_max_ps(t0, lo);
+            hi = _mm256_min_ps(t1, hi);
+        }
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(lo, hi);
+        mask |= (_mm256_movemask_ps(hit) as u32) << first;
+        Vec4::from(_mm256_castps256_ps128(lo))
+            .write_to_slice(&mut entry[first..first + LANES_PER_TEST]);
+        Vec4::from(_mm256_extractf128_ps::<1>(lo))
+            .write_to_slice(&mut entry[first + LANES_PER_TEST..first + LANES_PER_AVX_TEST]);
+    }
+    (mask, entry)
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// The single-ray walk (`walk_with`), on the AVX lane test where
+    /// [`walk_is_avx`] allows it and on the four-lane test otherwise.
+    #[inline(always)]
+    pub(super) fn walk_one<F>(
+        &self,
+        start: u32,
+        test: &RayTest,
+        limit: f32,
+        stack: &mut Vec<(u32, f32)>,
+        stats: &mut QueryStats,
+        visit: F,
+    ) -> f32
+    where
+        F: FnMut(u32, f32) -> ControlFlow<(), f32>,
+    {
+        if walk_is_avx::<W>(test) {
+            // SAFETY: `walk_is_avx` is true only once the standard
+            // library's run-time check has found AVX on this processor,
+            // the one requirement of a function compiled with it enabled.
+            #[allow(unsafe_code)]
+            unsafe {
+                self.walk_one_avx(start, test, limit, stack, stats, visit)
+            }
+        } else {
+            self.walk_with(start, test, limit, stack, stats, visit, ray_lanes::<W>)
+        }
+    }
+
+    /// The walk compiled with AVX enabled: the lane test inlined into it
+    /// (through the closure, which inherits the target feature) tests
+    /// eight lanes per instruction.
+    #[target_feature(enable = "avx")]
+    fn walk_one_avx<F>(
+        &self,
+        start: u32,
+        test: &RayTest,
+        limit: f32,
+        stack: &mut Vec<(u32, f32)>,
+        stats: &mut QueryStats,
+        visit: F,
+    ) -> f32
+    where
+        F: FnMut(u32, f32) -> ControlFlow<(), f32>,
+    {
+        self.walk_with(
+            start,
+            test,
+            limit,
+            stack,
+            stats,
+            visit,
+            |ray, limit, node| avx_ray_lanes(ray, limit, node),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+    use crate::geometry::predicates::ray_box_entry;
+    use crate::tree::node::LaneSamples;
+
+    /// The AVX lane test and the scalar S4 predicate agree bit for bit, on
+    /// grid values that make slabs touch (signed zeros included) and on
+    /// arbitrary floats: the same property the four-lane test is held to.
+    fn avx_lanes_agree_with_the_scalar_predicate<const W: usize>() -> usize {
+        let mut samples = LaneSamples::new(7, 5.0);
+        let mut checked = 0;
+        for round in 0..20_000 {
+            let grid = round % 2 == 0;
+            let node = samples.node::<W>(grid, 1 + round % W);
+            let dir = samples.point(grid);
+            let Ok(ray) = Ray::new(samples.point(grid), dir, samples.value(grid).abs() * 3.0)
+            else {
+                continue;
+            };
+            let test = RayTest::new(&ray);
+            let limit = if round % 3 == 0 {
+                f32::INFINITY
+            } else {
+                ray.max_t
+            };
+            if !walk_is_avx::<W>(&test) {
+                continue;
+            }
+            // SAFETY: `walk_is_avx` found AVX on this processor.
+            #[allow(unsafe_code)]
+            let (mask, lane_t) = unsafe { avx_ray_lanes(&test, limit, &node) };
+            checked += 1;
+            for (lane, lane_t) in lane_t.iter().enumerate() {
+                let b = node.lane_box(lane);
+                let scalar = ray_box_entry(&test, limit, b.min.to_array(), b.max.to_array());
+                assert_eq!(
+                    mask & (1 << lane) != 0,
+                    scalar.is_some(),
+                    "lane {lane} round {round}"
+                );
+                if let Some(t) = scalar {
+                    assert_eq!(t.to_bits(), lane_t.to_bits(), "lane {lane} round {round}");
+                }
+            }
+        }
+        checked
+    }
+
+    #[test]
+    fn avx_lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
+        let checked = avx_lanes_agree_with_the_scalar_predicate::<8>()
+            + avx_lanes_agree_with_the_scalar_predicate::<16>();
+        if std::is_x86_feature_detected!("avx") {
+            assert!(checked > 10_000, "only {checked} rays took the AVX test");
+        } else {
+            assert_eq!(checked, 0, "no AVX, yet the AVX test ran");
+        }
+    }
+
+    #[test]
+    fn width_four_and_flat_rays_keep_the_four_lane_walk() {
+        let slanted = RayTest::new(&Ray::new(glam::Vec3::ZERO, glam::Vec3::ONE, 1.0).unwrap());
+        let flat = RayTest::new(&Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 1.0).unwrap());
+        assert!(!walk_is_avx::<4>(&slanted));
+        assert!(!walk_is_avx::<16>(&flat));
+        assert_eq!(
+            walk_is_avx::<16>(&slanted),
+            std::is_x86_feature_detected!("avx")
+        );
+    }
+}
