@@ -165,50 +165,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 mod tests {
     use super::*;
     use crate::geometry::Ray;
-    use crate::geometry::predicates::ray_box_entry;
-    use crate::tree::node::LaneSamples;
+    use crate::query::ray::tests::lanes_agree_with_the_scalar_predicate;
 
-    /// The AVX lane test and the scalar S4 predicate agree bit for bit, on
-    /// grid values that make slabs touch (signed zeros included) and on
-    /// arbitrary floats: the same property the four-lane test is held to.
+    /// The AVX lane test on the rays `walk_is_avx` gives it.
     fn avx_lanes_agree_with_the_scalar_predicate<const W: usize>() -> usize {
-        let mut samples = LaneSamples::new(7, 5.0);
-        let mut checked = 0;
-        for round in 0..20_000 {
-            let grid = round % 2 == 0;
-            let node = samples.node::<W>(grid, 1 + round % W);
-            let dir = samples.point(grid);
-            let Ok(ray) = Ray::new(samples.point(grid), dir, samples.value(grid).abs() * 3.0)
-            else {
-                continue;
-            };
-            let test = RayTest::new(&ray);
-            let limit = if round % 3 == 0 {
-                f32::INFINITY
-            } else {
-                ray.max_t
-            };
-            if !walk_is_avx::<W>(&test) {
-                continue;
+        lanes_agree_with_the_scalar_predicate::<W>(7, |ray, limit, node| {
+            if !walk_is_avx::<W>(ray) {
+                return None;
             }
             // SAFETY: `walk_is_avx` found AVX on this processor.
             #[allow(unsafe_code)]
-            let (mask, lane_t) = unsafe { avx_ray_lanes(&test, limit, &node) };
-            checked += 1;
-            for (lane, lane_t) in lane_t.iter().enumerate() {
-                let b = node.lane_box(lane);
-                let scalar = ray_box_entry(&test, limit, b.min.to_array(), b.max.to_array());
-                assert_eq!(
-                    mask & (1 << lane) != 0,
-                    scalar.is_some(),
-                    "lane {lane} round {round}"
-                );
-                if let Some(t) = scalar {
-                    assert_eq!(t.to_bits(), lane_t.to_bits(), "lane {lane} round {round}");
-                }
-            }
-        }
-        checked
+            Some(unsafe { avx_ray_lanes(ray, limit, node) })
+        })
     }
 
     #[test]
