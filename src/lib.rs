@@ -180,14 +180,14 @@
 //! - [`scene`]: the deterministic standard scene used by the examples and
 //!   benchmarks.
 //!
-//! The crate has two `unsafe` blocks, each in a file of its own with the
+//! The crate has two `unsafe` blocks, each documented with the
 //! measurement that justifies it: the cache prefetch hint in
 //! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
-//! because they measured 10–20 % faster with it, and the call into the ray
-//! walk compiled for AVX in `query/ray_avx.rs`, made only once a run-time
-//! check has found AVX (rays 11–13 % faster; see the README). Everything
-//! else is safe code.
-// `deny` rather than `forbid` so that one fenced file can allow it.
+//! because they measured 10–20 % faster with it, and the call from the
+//! single-ray walk (`query/ray.rs`) into its twin compiled for AVX
+//! (`query/ray_avx.rs`), made only once a run-time check has found AVX
+//! (rays 11–13 % faster; see the README). Everything else is safe code.
+// `deny` rather than `forbid` so that the two fenced places can allow it.
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 

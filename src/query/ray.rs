@@ -422,7 +422,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// the ray's state at every node and matched on the mode at every hit,
     /// made batched rays about 10 % slower than single ones.) `lanes` is
     /// the lane test: [`ray_lanes`], or its AVX twin where `walk_one`
-    /// (in `ray_avx`) finds the processor has AVX.
+    /// finds the processor has AVX.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub(super) fn walk_with<F, L>(
@@ -469,11 +469,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         limit
     }
 
-    /// The single-ray walk on the four-lane test, where the AVX one in
-    /// `ray_avx` is not compiled.
-    #[cfg(not(target_arch = "x86_64"))]
+    /// The single-ray walk: on the AVX lane test where
+    /// `ray_avx::walk_is_avx` allows it, on the four-lane test otherwise.
     #[inline(always)]
-    pub(super) fn walk_one<F>(
+    fn walk_one<F>(
         &self,
         start: u32,
         test: &RayTest,
@@ -485,6 +484,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
     {
+        #[cfg(target_arch = "x86_64")]
+        if super::ray_avx::walk_is_avx::<W>(test) {
+            // SAFETY: `walk_is_avx` is true only once the standard
+            // library's run-time check has found AVX on this processor,
+            // the one requirement of a function compiled with it enabled.
+            #[allow(unsafe_code)]
+            return unsafe { self.walk_one_avx(start, test, limit, stack, stats, visit) };
+        }
         self.walk_with(start, test, limit, stack, stats, visit, ray_lanes::<W>)
     }
 

@@ -14,11 +14,11 @@
 //! test holds it to that). It covers rays with no zero direction component;
 //! a ray that runs flat along an axis keeps the four-lane walk.
 //!
-//! This file holds the crate's second `unsafe` block (and its unit test a
-//! third): calling a function compiled for AVX is `unsafe` because on a
-//! processor without AVX it would execute instructions the processor lacks;
-//! the call is made only after the standard library's run-time check has
-//! found AVX.
+//! Calling a function compiled for AVX is `unsafe`: on a processor without
+//! AVX it would execute instructions the processor lacks. The crate's one
+//! such call is in `RTree::walk_one` (`ray.rs`), made only after
+//! [`walk_is_avx`] (the standard library's run-time check) has found AVX;
+//! this file's unit test makes another the same way.
 //!
 //! [`ray_lanes`]: super::ray::ray_lanes
 
@@ -32,7 +32,6 @@ use std::ops::ControlFlow;
 
 use glam::Vec4;
 
-use super::ray::ray_lanes;
 use crate::geometry::predicates::RayTest;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 use crate::tree::{QueryStats, RTree};
@@ -105,39 +104,12 @@ pub(super) fn avx_ray_lanes<const W: usize>(
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
-    /// The single-ray walk (`walk_with`), on the AVX lane test where
-    /// [`walk_is_avx`] allows it and on the four-lane test otherwise.
-    #[inline(always)]
-    pub(super) fn walk_one<F>(
-        &self,
-        start: u32,
-        test: &RayTest,
-        limit: f32,
-        stack: &mut Vec<(u32, f32)>,
-        stats: &mut QueryStats,
-        visit: F,
-    ) -> f32
-    where
-        F: FnMut(u32, f32) -> ControlFlow<(), f32>,
-    {
-        if walk_is_avx::<W>(test) {
-            // SAFETY: `walk_is_avx` is true only once the standard
-            // library's run-time check has found AVX on this processor,
-            // the one requirement of a function compiled with it enabled.
-            #[allow(unsafe_code)]
-            unsafe {
-                self.walk_one_avx(start, test, limit, stack, stats, visit)
-            }
-        } else {
-            self.walk_with(start, test, limit, stack, stats, visit, ray_lanes::<W>)
-        }
-    }
-
     /// The walk compiled with AVX enabled: the lane test inlined into it
     /// (through the closure, which inherits the target feature) tests
     /// eight lanes per instruction.
+    /// Call it only where [`walk_is_avx`] is true (`RTree::walk_one` does).
     #[target_feature(enable = "avx")]
-    fn walk_one_avx<F>(
+    pub(super) fn walk_one_avx<F>(
         &self,
         start: u32,
         test: &RayTest,
