@@ -180,14 +180,18 @@
 //! - [`scene`]: the deterministic standard scene used by the examples and
 //!   benchmarks.
 //!
-//! The crate has two `unsafe` blocks, each documented with the
-//! measurement that justifies it: the cache prefetch hint in
+//! The crate's `unsafe` code sits in three places, each documented with
+//! the measurement that justifies it: the cache prefetch hint in
 //! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
-//! because they measured 10–20 % faster with it, and the call from the
+//! because they measured 10–20 % faster with it; the call from the
 //! single-ray walk (`query/ray.rs`) into its twin compiled for AVX
 //! (`query/ray_avx.rs`), made only once a run-time check has found AVX
-//! (rays 11–13 % faster; see the README). Everything else is safe code.
-// `deny` rather than `forbid` so that the two fenced places can allow it.
+//! (rays 11–13 % faster); and the calls from the joins (`query/join.rs`)
+//! into their twins compiled for AVX-512 (`query/join_avx512.rs`, whose
+//! sixteen-lane load is the third), made only once a run-time check has
+//! found AVX-512 (self join 12–17 % faster; see the README). Everything
+//! else is safe code.
+// `deny` rather than `forbid` so that the fenced places can allow it.
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 

@@ -176,16 +176,32 @@ fn meet(a: &Aabb, b: &Aabb) -> Aabb {
     }
 }
 
+/// The box lane test a join runs on: `masks(node, query, lanes)` is the set
+/// of `lanes` of `node` whose boxes overlap `query` (S2), as
+/// [`Node::overlap_mask_among`] computes it four lanes at a time, or its
+/// AVX-512 twin (`join_avx512.rs`) sixteen at a time. Both give the same
+/// bits, so the traversal and its answers are the same either way.
+pub(crate) trait LaneMasks<const W: usize>: Fn(&Node<W>, &Aabb, u32) -> u32 + Copy {}
+
+impl<const W: usize, L: Fn(&Node<W>, &Aabb, u32) -> u32 + Copy> LaneMasks<W> for L {}
+
+/// The four-lane box lane test, which every processor runs.
+#[inline(always)]
+pub(crate) fn four_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, lanes: u32) -> u32 {
+    node.overlap_mask_among(query, lanes)
+}
+
 /// The children of `node` whose bound overlaps `region`, each with the
 /// region cut down to its bound grown by `reach`: the items of a node that
 /// descends alone against a shorter partner.
-#[inline]
+#[inline(always)]
 fn children_in_region<'a, const W: usize>(
     node: &'a Node<W>,
     region: &'a Aabb,
     reach: f32,
+    masks: impl LaneMasks<W> + 'a,
 ) -> impl Iterator<Item = (u32, Aabb)> + 'a {
-    let mut mask = node.overlap_mask(region) & used_lanes(node);
+    let mut mask = masks(node, region, used_lanes(node));
     std::iter::from_fn(move || {
         if mask == 0 {
             return None;
@@ -203,6 +219,8 @@ fn children_in_region<'a, const W: usize>(
 /// the join stack; pairs of leaf entries that pass the exact predicate go to
 /// `emit(i, j)`. With `same_node`, each unordered lane pair is taken once
 /// and every child is also paired with itself.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn join_lane_pairs<const W: usize>(
     na: &Node<W>,
     nb: &Node<W>,
@@ -210,30 +228,31 @@ fn join_lane_pairs<const W: usize>(
     region: &Aabb,
     test: JoinTest,
     ws: &mut QueryWorkspace,
+    masks: impl LaneMasks<W>,
     emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     if same_node {
         let lanes = used_lanes(na);
         // Each lane meets the lanes above it only: each unordered pair once.
         let above = |i: usize| lanes & !((2u32 << i) - 1);
-        return lane_pairs(na, lanes, na, above, true, test, ws, emit);
+        return lane_pairs(na, lanes, na, above, true, test, ws, masks, emit);
     }
-    let a_lanes = na.overlap_mask(region) & used_lanes(na);
-    let b_lanes = nb.overlap_mask(region) & used_lanes(nb);
+    let a_lanes = masks(na, region, used_lanes(na));
+    let b_lanes = masks(nb, region, used_lanes(nb));
     // The side with fewer lanes near the other goes outside: each of its
     // lanes costs one test of the other side's groups.
     if lane_count(a_lanes) <= lane_count(b_lanes) {
-        lane_pairs(na, a_lanes, nb, |_| b_lanes, true, test, ws, emit)
+        lane_pairs(na, a_lanes, nb, |_| b_lanes, true, test, ws, masks, emit)
     } else {
-        lane_pairs(nb, b_lanes, na, |_| a_lanes, false, test, ws, emit)
+        lane_pairs(nb, b_lanes, na, |_| a_lanes, false, test, ws, masks, emit)
     }
 }
 
 /// Each lane `o` of `outer` among `outer_lanes` against the lanes of
 /// `inner` among `inner_lanes(o)` whose boxes are within reach, tested only
-/// in the groups of four that hold such lanes ([`Node::overlap_mask_among`]:
+/// in the groups of lanes that hold such lanes ([`Node::overlap_mask_among`]:
 /// after a join's region test a leaf keeps about two of its lanes, so most
-/// groups hold none). `outer_is_a` tells which node is `na`, so that either
+/// groups of four hold none). `outer_is_a` tells which node is `na`, so that either
 /// can go outside. With `outer` and `inner` the same internal node, each
 /// child is also paired with itself.
 #[allow(clippy::too_many_arguments)]
@@ -246,6 +265,7 @@ fn lane_pairs<const W: usize>(
     outer_is_a: bool,
     test: JoinTest,
     ws: &mut QueryWorkspace,
+    masks: impl LaneMasks<W>,
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     let a_b = |o: u32, n: u32| if outer_is_a { (o, n) } else { (n, o) };
@@ -256,7 +276,7 @@ fn lane_pairs<const W: usize>(
         lanes &= lanes - 1;
         let lane_box = outer.lane_box(o);
         let lane_reach = grow(&lane_box, test.reach);
-        let mut mask = inner.overlap_mask_among(&lane_reach, inner_lanes(o));
+        let mut mask = masks(inner, &lane_reach, inner_lanes(o));
         if same_node && !outer.is_leaf() {
             ws.join_stack.push(JoinItem {
                 a: outer.child[o],
@@ -317,28 +337,63 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.join_stack.clear();
         ws.join_stack
             .push(JoinItem::roots(self.root(), self.root()));
-        while let Some(item) = ws.join_stack.pop() {
-            if self.self_join_step(item, test, ws, &mut visit).is_break() {
-                break;
-            }
-        }
+        let _ = self.drain_self_join(test, ws, &mut visit);
         Ok(())
+    }
+
+    /// Runs the self join from the node pairs on `ws.join_stack` until the
+    /// stack is empty or `visit` breaks: on the AVX-512 lane test where
+    /// `join_avx512::masks_are_avx512` allows it, on the four-lane test
+    /// otherwise.
+    pub(crate) fn drain_self_join(
+        &self,
+        test: JoinTest,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        #[cfg(target_arch = "x86_64")]
+        if super::join_avx512::masks_are_avx512::<W>() {
+            // SAFETY: `masks_are_avx512` is true only once the standard
+            // library's run-time check has found AVX-512 on this
+            // processor, the one requirement of a function compiled with
+            // it enabled.
+            #[allow(unsafe_code)]
+            return unsafe { self.drain_self_join_avx512(test, ws, visit) };
+        }
+        self.drain_self_join_with(test, ws, visit, four_lane_masks::<W>)
+    }
+
+    /// [`RTree::drain_self_join`] on the lane test `masks`.
+    #[inline(always)]
+    pub(super) fn drain_self_join_with(
+        &self,
+        test: JoinTest,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+        masks: impl LaneMasks<W>,
+    ) -> ControlFlow<()> {
+        while let Some(item) = ws.join_stack.pop() {
+            self.self_join_step(item, test, ws, masks, visit)?;
+        }
+        ControlFlow::Continue(())
     }
 
     /// One pair of nodes of a self join: pushes the child pairs that can
     /// still hold pairs within `distance`, or, for two leaves, reports the
     /// entry pairs.
+    #[inline(always)]
     pub(crate) fn self_join_step(
         &self,
         item: JoinItem,
         test: JoinTest,
         ws: &mut QueryWorkspace,
+        masks: impl LaneMasks<W>,
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
         ws.stats.nodes_visited += 1;
         let JoinItem { a, b, region } = item;
         let (na, nb) = (self.node(a), self.node(b));
-        join_lane_pairs(na, nb, a == b, &region, test, ws, |i, j| {
+        join_lane_pairs(na, nb, a == b, &region, test, ws, masks, |i, j| {
             let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
             visit(ka.min(kb), ka.max(kb))
         })
@@ -388,25 +443,54 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.join_stack.clear();
         ws.join_stack
             .push(JoinItem::roots(self.root(), other.root()));
-        while let Some(item) = ws.join_stack.pop() {
-            if self
-                .cross_join_step(other, item, test, ws, &mut visit)
-                .is_break()
-            {
-                break;
-            }
-        }
+        let _ = self.drain_cross_join(other, test, ws, &mut visit);
         Ok(())
+    }
+
+    /// Runs the cross join with `other` from the node pairs on
+    /// `ws.join_stack`, as [`RTree::drain_self_join`].
+    pub(crate) fn drain_cross_join(
+        &self,
+        other: &RTree<K, W>,
+        test: JoinTest,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        #[cfg(target_arch = "x86_64")]
+        if super::join_avx512::masks_are_avx512::<W>() {
+            // SAFETY: as in `drain_self_join`.
+            #[allow(unsafe_code)]
+            return unsafe { self.drain_cross_join_avx512(other, test, ws, visit) };
+        }
+        self.drain_cross_join_with(other, test, ws, visit, four_lane_masks::<W>)
+    }
+
+    /// [`RTree::drain_cross_join`] on the lane test `masks`.
+    #[inline(always)]
+    pub(super) fn drain_cross_join_with(
+        &self,
+        other: &RTree<K, W>,
+        test: JoinTest,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
+        masks: impl LaneMasks<W>,
+    ) -> ControlFlow<()> {
+        while let Some(item) = ws.join_stack.pop() {
+            self.cross_join_step(other, item, test, ws, masks, visit)?;
+        }
+        ControlFlow::Continue(())
     }
 
     /// One pair of nodes of a cross join: the taller side descends alone
     /// until the levels meet; then as [`RTree::self_join_step`].
+    #[inline(always)]
     pub(crate) fn cross_join_step(
         &self,
         other: &RTree<K, W>,
         item: JoinItem,
         test: JoinTest,
         ws: &mut QueryWorkspace,
+        masks: impl LaneMasks<W>,
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
         ws.stats.nodes_visited += 1;
@@ -416,13 +500,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if na.level != nb.level {
             let a_descends = na.level > nb.level;
             let taller = if a_descends { na } else { nb };
-            for (child, region) in children_in_region(taller, &region, test.reach) {
+            for (child, region) in children_in_region(taller, &region, test.reach, masks) {
                 let (a, b) = if a_descends { (child, b) } else { (a, child) };
                 ws.join_stack.push(JoinItem { a, b, region });
             }
             return ControlFlow::Continue(());
         }
-        join_lane_pairs(na, nb, false, &region, test, ws, |i, j| {
+        join_lane_pairs(na, nb, false, &region, test, ws, masks, |i, j| {
             let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
             if ka == kb {
                 return ControlFlow::Continue(());

@@ -8,6 +8,8 @@
 
 mod frustum;
 mod join;
+#[cfg(target_arch = "x86_64")]
+mod join_avx512;
 mod nearest;
 pub mod oracle;
 mod overlap;

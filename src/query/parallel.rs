@@ -33,7 +33,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use bevy_tasks::{ComputeTaskPool, TaskPool};
 
 use super::frustum::{CullItem, PreparedView, fully_inside};
-use super::join::{JoinItem, JoinTest};
+use super::join::{JoinItem, JoinTest, four_lane_masks};
 use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
 use crate::geometry::{Frustum, Ray, SpatialError};
 use crate::tree::{QueryStats, RTree};
@@ -476,7 +476,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             pws,
             out,
             |item| self.node(item.a).is_leaf(),
-            |pair, ws, mut visit| self.self_join_step(pair, test, ws, &mut visit),
+            |pair, ws, mut visit| self.self_join_step(pair, test, ws, four_lane_masks, &mut visit),
+            |ws, mut visit| self.drain_self_join(test, ws, &mut visit),
         );
         Ok(())
     }
@@ -503,13 +504,19 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             pws,
             out,
             |item| self.node(item.a).is_leaf() && other.node(item.b).is_leaf(),
-            |pair, ws, mut visit| self.cross_join_step(other, pair, test, ws, &mut visit),
+            |pair, ws, mut visit| {
+                self.cross_join_step(other, pair, test, ws, four_lane_masks, &mut visit)
+            },
+            |ws, mut visit| self.drain_cross_join(other, test, ws, &mut visit),
         );
         Ok(())
     }
 
-    /// The split shared by both joins, from the root pair `start`.
-    fn par_join<Step>(
+    /// The split shared by both joins, from the root pair `start`: `step`
+    /// expands one pair while the split runs breadth first, `drain` runs a
+    /// task's stack of pairs to the end.
+    #[allow(clippy::too_many_arguments)]
+    fn par_join<Step, Drain>(
         &self,
         start: JoinItem,
         count: usize,
@@ -517,12 +524,14 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         out: &mut Vec<(K, K)>,
         may_report: impl Fn(JoinItem) -> bool,
         step: Step,
+        drain: Drain,
     ) where
         Step: Fn(
-                JoinItem,
-                &mut QueryWorkspace,
-                &mut dyn FnMut(K, K) -> ControlFlow<()>,
-            ) -> ControlFlow<()>
+            JoinItem,
+            &mut QueryWorkspace,
+            &mut dyn FnMut(K, K) -> ControlFlow<()>,
+        ) -> ControlFlow<()>,
+        Drain: Fn(&mut QueryWorkspace, &mut dyn FnMut(K, K) -> ControlFlow<()>) -> ControlFlow<()>
             + Sync,
     {
         pws.tasks(count);
@@ -553,12 +562,10 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.ws.join_stack.clear();
             task.ws.join_stack.push(item);
             let pairs = &mut task.pairs;
-            while let Some(pair) = task.ws.join_stack.pop() {
-                let _ = step(pair, &mut task.ws, &mut |a, b| {
-                    pairs.push((a, b));
-                    ControlFlow::Continue(())
-                });
-            }
+            let _ = drain(&mut task.ws, &mut |a, b| {
+                pairs.push((a, b));
+                ControlFlow::Continue(())
+            });
             task.ends.push(pairs.len());
         });
         let owner = &mut pws.owner;
