@@ -183,14 +183,14 @@
 //! The crate's `unsafe` code sits in three places, each documented with
 //! the measurement that justifies it: the cache prefetch hint in
 //! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
-//! because they measured 10–20 % faster with it; the call from the
-//! single-ray walk (`query/ray.rs`) into its twin compiled for AVX
-//! (`query/ray_avx.rs`), made only once a run-time check has found AVX
-//! (rays 11–13 % faster); and the calls from the joins (`query/join.rs`)
-//! into their twins compiled for AVX-512 (`query/join_avx512.rs`, whose
-//! sixteen-lane load is the third), made only once a run-time check has
-//! found AVX-512 (self join 12–17 % faster; see the README). Everything
-//! else is safe code.
+//! because they measured 10–20 % faster with it; the calls from the
+//! single-ray walk (`query/ray.rs`) into its twins compiled for AVX and
+//! AVX-512 (`query/ray_avx.rs`, `query/ray_avx512.rs`), made only once a
+//! run-time check has found those instructions (rays 11–15 % faster); and
+//! the calls from the joins (`query/join.rs`) into their twins compiled for
+//! AVX-512 (`query/join_avx512.rs`, whose sixteen-lane load is the last
+//! `unsafe` block), likewise checked (self join 12–17 % faster; see the
+//! README). Everything else is safe code.
 // `deny` rather than `forbid` so that the fenced places can allow it.
 #![deny(unsafe_code)]
 #![warn(missing_docs)]

@@ -37,7 +37,7 @@ use crate::tree::RTree;
 use crate::tree::node::Node;
 
 /// Lanes one AVX-512 test covers.
-const LANES_PER_AVX512_TEST: usize = 16;
+pub(super) const LANES_PER_AVX512_TEST: usize = 16;
 
 /// Whether joins of trees `W` wide run on the AVX-512 lane test: the width
 /// is a multiple of sixteen and the processor has AVX-512 (its foundation
@@ -48,10 +48,11 @@ pub(super) fn masks_are_avx512<const W: usize>() -> bool {
     W.is_multiple_of(LANES_PER_AVX512_TEST) && std::is_x86_feature_detected!("avx512f")
 }
 
-/// Lanes `first..first + 16` of a row as one AVX-512 register.
+/// Lanes `first..first + 16` of a row as one AVX-512 register (for the
+/// joins' and the rays' AVX-512 lane tests).
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn sixteen_lanes<const W: usize>(row: &[f32; W], first: usize) -> __m512 {
+pub(super) fn sixteen_lanes<const W: usize>(row: &[f32; W], first: usize) -> __m512 {
     let lanes = &row[first..first + LANES_PER_AVX512_TEST];
     // SAFETY: `lanes` holds exactly the sixteen floats the unaligned load
     // reads (the slice above is bounds-checked), and AVX-512, which the

@@ -18,6 +18,8 @@ mod parallel;
 mod ray;
 #[cfg(target_arch = "x86_64")]
 mod ray_avx;
+#[cfg(target_arch = "x86_64")]
+mod ray_avx512;
 mod ray_origin;
 mod sphere;
 mod workspace;

@@ -421,8 +421,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// the loop. (The batch's own earlier copy of this walk, which re-read
     /// the ray's state at every node and matched on the mode at every hit,
     /// made batched rays about 10 % slower than single ones.) `lanes` is
-    /// the lane test: [`ray_lanes`], or its AVX twin where `walk_one`
-    /// finds the processor has AVX.
+    /// the lane test: [`ray_lanes`], or its AVX or AVX-512 twin where
+    /// `walk_one` finds the processor has them.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub(super) fn walk_with<F, L>(
@@ -469,8 +469,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         limit
     }
 
-    /// The single-ray walk: on the AVX lane test where
-    /// `ray_avx::walk_is_avx` allows it, on the four-lane test otherwise.
+    /// The single-ray walk: on the AVX-512 lane test where
+    /// `ray_avx512::walk_is_avx512` allows it, else on the AVX lane test
+    /// where `ray_avx::walk_is_avx` does, on the four-lane test otherwise.
     #[inline(always)]
     fn walk_one<F>(
         &self,
@@ -485,12 +486,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
     {
         #[cfg(target_arch = "x86_64")]
-        if super::ray_avx::walk_is_avx::<W>(test) {
-            // SAFETY: `walk_is_avx` is true only once the standard
-            // library's run-time check has found AVX on this processor,
-            // the one requirement of a function compiled with it enabled.
-            #[allow(unsafe_code)]
-            return unsafe { self.walk_one_avx(start, test, limit, stack, stats, visit) };
+        {
+            if super::ray_avx512::walk_is_avx512::<W>(test) {
+                // SAFETY: `walk_is_avx512` is true only once the standard
+                // library's run-time check has found AVX-512 on this
+                // processor, the one requirement of a function compiled
+                // with it enabled.
+                #[allow(unsafe_code)]
+                return unsafe { self.walk_one_avx512(start, test, limit, stack, stats, visit) };
+            }
+            if super::ray_avx::walk_is_avx::<W>(test) {
+                // SAFETY: as above, for AVX and `walk_is_avx`.
+                #[allow(unsafe_code)]
+                return unsafe { self.walk_one_avx(start, test, limit, stack, stats, visit) };
+            }
         }
         self.walk_with(start, test, limit, stack, stats, visit, ray_lanes::<W>)
     }
