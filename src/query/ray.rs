@@ -236,6 +236,26 @@ fn ray_lanes_with_flat_axis<const W: usize>(
     lanes_of::<W, true>(ray, limit, node)
 }
 
+/// Per axis, the rows of `node`'s bounds through which `ray` enters and
+/// leaves the lanes' slabs: `(min, max)` where the ray runs towards `+`,
+/// `(max, min)` otherwise. Shared by the four-, eight- and sixteen-lane
+/// tests; a plain function, not `array::from_fn`, so that it inlines into
+/// the walks compiled for AVX and AVX-512.
+#[inline(always)]
+pub(super) fn near_far_rows<'a, const W: usize>(
+    ray: &RayTest,
+    node: &'a Node<W>,
+) -> [(&'a [f32; W], &'a [f32; W]); 3] {
+    let rows = |axis: usize| {
+        if ray.inv[axis] > 0.0 {
+            (&node.min[axis], &node.max[axis])
+        } else {
+            (&node.max[axis], &node.min[axis])
+        }
+    };
+    [rows(0), rows(1), rows(2)]
+}
+
 /// The lane test of [`ray_lanes`]. With `FLAT`, an axis the ray runs flat
 /// along is a slab test on the origin, as in the scalar predicate; without,
 /// the ray must have no zero direction component, and the check is
@@ -246,13 +266,7 @@ fn lanes_of<const W: usize, const FLAT: bool>(
     limit: f32,
     node: &Node<W>,
 ) -> (u32, [f32; W]) {
-    let rows: [(&[f32; W], &[f32; W]); 3] = std::array::from_fn(|axis| {
-        if ray.inv[axis] > 0.0 {
-            (&node.min[axis], &node.max[axis])
-        } else {
-            (&node.max[axis], &node.min[axis])
-        }
-    });
+    let rows = near_far_rows(ray, node);
     let origin = ray.origin.map(Vec4::splat);
     let inv = ray.inv.map(Vec4::splat);
     let mut entry = [0.0f32; W];

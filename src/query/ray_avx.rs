@@ -32,6 +32,7 @@ use std::ops::ControlFlow;
 
 use glam::Vec4;
 
+use super::ray::near_far_rows;
 use crate::geometry::predicates::RayTest;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 use crate::tree::{QueryStats, RTree};
@@ -68,16 +69,7 @@ pub(super) fn avx_ray_lanes<const W: usize>(
     limit: f32,
     node: &Node<W>,
 ) -> (u32, [f32; W]) {
-    // Not `array::from_fn`: its closure would not be compiled for AVX and
-    // stayed a call.
-    let row = |axis: usize| {
-        if ray.inv[axis] > 0.0 {
-            (&node.min[axis], &node.max[axis])
-        } else {
-            (&node.max[axis], &node.min[axis])
-        }
-    };
-    let rows = [row(0), row(1), row(2)];
+    let rows = near_far_rows(ray, node);
     let mut entry = [0.0f32; W];
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_AVX_TEST) {
