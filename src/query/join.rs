@@ -252,8 +252,8 @@ fn join_lane_pairs<const W: usize>(
 /// `inner` among `inner_lanes(o)` whose boxes are within reach, tested only
 /// in the groups of lanes that hold such lanes ([`Node::overlap_mask_among`]:
 /// after a join's region test a leaf keeps about two of its lanes, so most
-/// groups of four hold none). `outer_is_a` tells which node is `na`, so that either
-/// can go outside. With `outer` and `inner` the same internal node, each
+/// groups of four hold none). `outer_is_a` tells which node is `na`, so
+/// that either can go outside. With `outer` and `inner` the same internal node, each
 /// child is also paired with itself.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -343,7 +343,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Runs the self join from the node pairs on `ws.join_stack` until the
     /// stack is empty or `visit` breaks: on the AVX-512 lane test where
-    /// `join_avx512::masks_are_avx512` allows it, on the four-lane test
+    /// `join_avx512::avx512_tests_nodes` allows it, on the four-lane test
     /// otherwise.
     pub(crate) fn drain_self_join(
         &self,
@@ -352,8 +352,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
         #[cfg(target_arch = "x86_64")]
-        if super::join_avx512::masks_are_avx512::<W>() {
-            // SAFETY: `masks_are_avx512` is true only once the standard
+        if super::join_avx512::avx512_tests_nodes::<W>() {
+            // SAFETY: `avx512_tests_nodes` is true only once the standard
             // library's run-time check has found AVX-512 on this
             // processor, the one requirement of a function compiled with
             // it enabled.
@@ -457,7 +457,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
     ) -> ControlFlow<()> {
         #[cfg(target_arch = "x86_64")]
-        if super::join_avx512::masks_are_avx512::<W>() {
+        if super::join_avx512::avx512_tests_nodes::<W>() {
             // SAFETY: as in `drain_self_join`.
             #[allow(unsafe_code)]
             return unsafe { self.drain_cross_join_avx512(other, test, ws, visit) };

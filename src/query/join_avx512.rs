@@ -8,7 +8,7 @@
 //! a node of the default width takes four groups of six compares. With
 //! AVX-512 one group of six masked compares covers all sixteen lanes, each
 //! compare narrowing the lanes the previous ones kept. The joins' traversal
-//! is compiled a second time with AVX-512 enabled, and [`masks_are_avx512`]
+//! is compiled a second time with AVX-512 enabled, and [`avx512_tests_nodes`]
 //! chooses it at run time. Measured on the standard scene, self join of
 //! 100,000 entries in a probe, alternating builds: about 4.8 → 3.9 ms (see
 //! the CHANGELOG for the bench run), with the same pairs in the same order.
@@ -20,7 +20,7 @@
 //! without it, it would execute instructions the processor lacks. The
 //! crate's calls are in `RTree::drain_self_join` and
 //! `RTree::drain_cross_join` (`join.rs`), made only after
-//! [`masks_are_avx512`] (the standard library's run-time check) has found
+//! [`avx512_tests_nodes`] (the standard library's run-time check) has found
 //! AVX-512; this file's unit test makes another the same way.
 //!
 //! [`Node::overlap_mask_among`]: crate::tree::node::Node::overlap_mask_among
@@ -39,12 +39,12 @@ use crate::tree::node::Node;
 /// Lanes one AVX-512 test covers.
 pub(super) const LANES_PER_AVX512_TEST: usize = 16;
 
-/// Whether joins of trees `W` wide run on the AVX-512 lane test: the width
-/// is a multiple of sixteen and the processor has AVX-512 (its foundation
-/// instructions). The standard library caches the processor check, so this
-/// costs a load and a compare.
+/// Whether nodes `W` wide take the AVX-512 lane tests (the joins' here, the
+/// rays' in `ray_avx512.rs`): the width is a multiple of sixteen and the
+/// processor has AVX-512 (its foundation instructions). The standard
+/// library caches the processor check, so this costs a load and a compare.
 #[inline]
-pub(super) fn masks_are_avx512<const W: usize>() -> bool {
+pub(super) fn avx512_tests_nodes<const W: usize>() -> bool {
     W.is_multiple_of(LANES_PER_AVX512_TEST) && std::is_x86_feature_detected!("avx512f")
 }
 
@@ -93,7 +93,7 @@ pub(super) fn avx512_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, la
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// The self join's traversal compiled with AVX-512 enabled, on the
     /// AVX-512 lane test (inlined through the closure, which inherits the
-    /// target feature). Call it only where [`masks_are_avx512`] is true
+    /// target feature). Call it only where [`avx512_tests_nodes`] is true
     /// (`RTree::drain_self_join` does).
     #[target_feature(enable = "avx512f")]
     pub(super) fn drain_self_join_avx512(
@@ -131,10 +131,10 @@ mod tests {
     #[test]
     fn avx512_lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
         let checked = lane_masks_agree_with_the_scalar_predicate::<16>(13, |node, query, lanes| {
-            if !masks_are_avx512::<16>() {
+            if !avx512_tests_nodes::<16>() {
                 return None;
             }
-            // SAFETY: `masks_are_avx512` found AVX-512 on this processor.
+            // SAFETY: `avx512_tests_nodes` found AVX-512 on this processor.
             #[allow(unsafe_code)]
             Some(unsafe { avx512_lane_masks(node, query, lanes) })
         });
@@ -150,10 +150,10 @@ mod tests {
 
     #[test]
     fn narrower_nodes_keep_the_four_lane_test() {
-        assert!(!masks_are_avx512::<4>());
-        assert!(!masks_are_avx512::<8>());
+        assert!(!avx512_tests_nodes::<4>());
+        assert!(!avx512_tests_nodes::<8>());
         assert_eq!(
-            masks_are_avx512::<16>(),
+            avx512_tests_nodes::<16>(),
             std::is_x86_feature_detected!("avx512f")
         );
     }

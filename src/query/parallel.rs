@@ -513,8 +513,9 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     }
 
     /// The split shared by both joins, from the root pair `start`: `step`
-    /// expands one pair while the split runs breadth first, `drain` runs a
-    /// task's stack of pairs to the end.
+    /// expands one pair while the split runs breadth first (on the
+    /// four-lane test: a few dozen pairs, which every lane test expands
+    /// alike), `drain` runs a task's stack of pairs to the end.
     #[allow(clippy::too_many_arguments)]
     fn par_join<Step, Drain>(
         &self,

@@ -23,7 +23,7 @@ use std::ops::ControlFlow;
 
 use glam::Vec4;
 
-use super::join_avx512::{LANES_PER_AVX512_TEST, sixteen_lanes};
+use super::join_avx512::{LANES_PER_AVX512_TEST, avx512_tests_nodes, sixteen_lanes};
 use super::ray::near_far_rows;
 use crate::geometry::predicates::RayTest;
 use crate::tree::node::{LANES_PER_TEST, Node};
@@ -35,9 +35,7 @@ use crate::tree::{QueryStats, RTree};
 /// zero direction component.
 #[inline]
 pub(super) fn walk_is_avx512<const W: usize>(ray: &RayTest) -> bool {
-    W.is_multiple_of(LANES_PER_AVX512_TEST)
-        && !ray.has_flat_axis
-        && std::is_x86_feature_detected!("avx512f")
+    !ray.has_flat_axis && avx512_tests_nodes::<W>()
 }
 
 /// [`super::ray::ray_lanes`] for a ray with no zero direction component,
