@@ -13,13 +13,21 @@
 //!   `parallel/rays_coherent_clear_eye`: 1,000 rays, first hit, as in the
 //!   queries bench (from the standard eye, inside boxes, one point query
 //!   answers every coherent ray; from the clear eye every ray walks);
+//! - `parallel/rays_incoherent_4000`: 4,000 incoherent rays in one batch
+//!   (a frame with four times the standard scene's rays), to show how the
+//!   speed-up grows once the work outweighs a pool thread's start;
+//! - `parallel/rays_incoherent_after_idle`: the 1,000 incoherent rays
+//!   again, but each timed call comes after `IDLE_GAP` of sleep (untimed),
+//!   as a game's once-per-frame call does: the pool threads have gone to
+//!   sleep by then, and this shows what waking one costs;
 //! - `parallel/frustum`: the standard camera, conservative;
 //! - `parallel/frustum_4_views`: the camera and three more yaws in one call
 //!   (a frame's cameras and shadow views);
 //! - `parallel/cross_join`: enemies x barrels within 5 m, Euclidean;
 //! - `parallel/self_join`: all touching or overlapping pairs (d = 0).
 
-use std::time::Duration;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
 
 use bevy_rtree::scene::TownScene;
 use bevy_rtree::{
@@ -33,6 +41,9 @@ use common::{bench_answers, bench_list};
 
 const SEED: u64 = 0x5EED_2024;
 const WARM_FRAMES: usize = 60;
+/// The untimed pause before each call of `parallel/rays_incoherent_after_idle`:
+/// about what the rest of a 60 Hz frame leaves between two calls.
+const IDLE_GAP: Duration = Duration::from_millis(2);
 
 struct Trees {
     all: RTree<u32>,
@@ -43,6 +54,7 @@ struct Trees {
 struct Inputs {
     frustums: Vec<Frustum>,
     incoherent: Vec<Ray>,
+    incoherent_4000: Vec<Ray>,
     coherent: Vec<Ray>,
     coherent_clear_eye: Vec<Ray>,
 }
@@ -86,6 +98,7 @@ fn setup() -> (Trees, Inputs) {
     let coherent = scene.coherent_rays();
     let coherent_clear_eye = scene.coherent_rays_from(scene.clear_eye());
     let incoherent = scene.incoherent_rays(1_000);
+    let incoherent_4000 = scene.incoherent_rays(4_000);
     let [(_, (all, _)), (_, (enemies, _)), (_, (barrels, _))] = trees;
     (
         Trees {
@@ -96,6 +109,7 @@ fn setup() -> (Trees, Inputs) {
         Inputs {
             frustums,
             incoherent,
+            incoherent_4000,
             coherent,
             coherent_clear_eye,
         },
@@ -111,6 +125,7 @@ fn check(trees: &Trees, inputs: &Inputs, pws: &mut ParallelWorkspace<u32>) {
     let mut ws = QueryWorkspace::default();
     for rays in [
         &inputs.incoherent,
+        &inputs.incoherent_4000,
         &inputs.coherent,
         &inputs.coherent_clear_eye,
     ] {
@@ -171,6 +186,38 @@ fn bench_rays(cr: &mut Criterion, trees: &Trees, name: &str, rays: &[Ray]) {
     group.finish();
 }
 
+/// [`bench_rays`] with `IDLE_GAP` of sleep before each timed call.
+fn bench_rays_after_idle(cr: &mut Criterion, trees: &Trees, name: &str, rays: &[Ray]) {
+    let mut group = cr.benchmark_group(name);
+    // Every iteration sleeps, so few samples keep the wall time short.
+    group.sampling_mode(SamplingMode::Flat).sample_size(10);
+    let mut after_idle = |name: &str, cast: &mut dyn FnMut(&mut RayResults<u32>)| {
+        let mut out = RayResults::default();
+        group.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    std::thread::sleep(IDLE_GAP);
+                    let start = Instant::now();
+                    cast(&mut out);
+                    total += start.elapsed();
+                    black_box(&out);
+                }
+                total
+            })
+        });
+    };
+    let mut ws = QueryWorkspace::default();
+    after_idle("single", &mut |out| {
+        trees.all.cast_rays(rays, RayMode::First, &mut ws, out);
+    });
+    let mut pws = ParallelWorkspace::default();
+    after_idle("parallel", &mut |out| {
+        trees.all.par_cast_rays(rays, RayMode::First, &mut pws, out);
+    });
+    group.finish();
+}
+
 fn bench_frustum(cr: &mut Criterion, trees: &Trees, name: &str, views: &[Frustum]) {
     let mut group = cr.benchmark_group(name);
     let mode = CullMode::Conservative;
@@ -223,6 +270,10 @@ fn bench_all(cr: &mut Criterion) {
     let (trees, inputs) = setup();
     check(&trees, &inputs, &mut ParallelWorkspace::default());
     bench_rays(cr, &trees, "parallel/rays_incoherent", &inputs.incoherent);
+    let many = &inputs.incoherent_4000;
+    bench_rays(cr, &trees, "parallel/rays_incoherent_4000", many);
+    let name = "parallel/rays_incoherent_after_idle";
+    bench_rays_after_idle(cr, &trees, name, &inputs.incoherent);
     bench_rays(cr, &trees, "parallel/rays_coherent", &inputs.coherent);
     let clear = &inputs.coherent_clear_eye;
     bench_rays(cr, &trees, "parallel/rays_coherent_clear_eye", clear);
