@@ -19,8 +19,9 @@
 //!
 //! Tasks are as many as the pool has threads, and the calling thread works
 //! as one of them: on the 2-core machine the benches ran on, a pool thread
-//! took 70 to 100 µs to start on a task, so more, smaller tasks lost more
-//! than they balanced. Work is claimed in pieces instead, so the calling
+//! took 34 to 100 µs to start on a task when calls came back to back (up
+//! to 320 µs after a few milliseconds of idle), so more, smaller tasks
+//! lost more than they balanced. Work is claimed in pieces instead, so the calling
 //! thread does more of it while a pool thread is starting.
 //!
 //! Small work runs on the calling thread: splitting costs a few
