@@ -119,13 +119,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// level-1 node when that adds no level to the tree.
     ///
     /// The room left in level-1 nodes is for the first frames of movement:
-    /// a bulk-loaded tree is full at every level, so the leaves that the
+    /// packed full at every level, a bulk-loaded tree lets the leaves that the
     /// first reinsertions split overflow their level-1 nodes, and each such
     /// split halves a node whose leaves were grouped for a full one. On the
     /// standard scene, four seeds, after 600 frames: 3–6 % fewer nodes per
     /// box query, 3–6 % fewer per incoherent ray, 1.5–3.5 % fewer self-join
-    /// node pairs, with the fresh tree within 1 % of the full packing's
-    /// visits (15 leaves per level-1 node gained nothing, 12 lost; slack
+    /// node pairs; on the fresh tree, box queries and the self join stay
+    /// within 1 % of the full packing's visits, rays within 3 % (15 leaves
+    /// per level-1 node gained nothing, 12 lost; slack
     /// in the leaves themselves made the fresh tree worse, see the README).
     fn groups_at(level: u16, entries: usize) -> usize {
         let full = entries.div_ceil(W);
