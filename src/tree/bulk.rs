@@ -143,7 +143,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Leaves per level-1 node in a bulk-loaded tree: 14 of 16 (7 of 8, 4
     /// of 4), see [`Self::groups_at`].
-    pub(crate) const LEVEL_ONE_FILL: usize = W - W / 8;
+    const LEVEL_ONE_FILL: usize = W - W / 8;
 
     /// Reserves room for `additional` more entries and their nodes.
     pub fn reserve(&mut self, additional: usize) {
@@ -245,7 +245,6 @@ mod tests {
     use glam::Vec3;
 
     use super::*;
-    use crate::tree::node::FREE_LEVEL;
 
     /// A bulk-loaded tree of `count` unit boxes on a 100 m square grid.
     fn grid_tree(count: u32) -> RTree<u32, 16> {
@@ -259,11 +258,12 @@ mod tests {
         tree
     }
 
-    /// The number of children of every live node at `level`.
+    /// The number of children of every node at `level` (free nodes have a
+    /// level of their own).
     fn fills(tree: &RTree<u32, 16>, level: u16) -> Vec<usize> {
         tree.nodes
             .iter()
-            .filter(|n| n.level == level && n.level != FREE_LEVEL)
+            .filter(|n| n.level == level)
             .map(|n| n.len())
             .collect()
     }
