@@ -234,3 +234,44 @@ proptest! {
         run::<4>(TreeSettings { split, ..eager_settings() }, &ops);
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// Bulk loads large enough that level-1 nodes keep room for more leaves
+    /// (more than 28 leaves at width 16), then a batch of moves and a
+    /// repack: `validate()` and the oracle after each step.
+    #[test]
+    fn large_bulk_loads_match_the_oracle_through_moves(
+        boxes in prop::collection::vec(common::grid_box(), 450..1200),
+        moves in prop::collection::vec((any::<usize>(), common::grid_box()), 0..300),
+        queries in prop::collection::vec(common::grid_box(), 8),
+    ) {
+        let mut tree: RTree<u32> = RTree::new();
+        let mut oracle = BruteForce::default();
+        let ids = tree
+            .insert_bulk(boxes.iter().enumerate().map(|(i, b)| (i as u32, *b)))
+            .unwrap();
+        for (i, b) in boxes.iter().enumerate() {
+            oracle.insert(i as u32, *b);
+        }
+        let agree = |tree: &RTree<u32>, oracle: &BruteForce<u32>| {
+            tree.validate().unwrap();
+            for query in &queries {
+                assert_eq!(tree.overlapping(query), oracle.overlapping(query));
+            }
+        };
+        agree(&tree, &oracle);
+        let batch: Vec<(ProxyId, Aabb)> = moves
+            .iter()
+            .map(|&(i, b)| (ids[i % ids.len()], b))
+            .collect();
+        for &(i, b) in &moves {
+            oracle.update((i % ids.len()) as u32, b);
+        }
+        tree.update_batch(&batch).unwrap();
+        agree(&tree, &oracle);
+        tree.optimize(usize::MAX);
+        agree(&tree, &oracle);
+    }
+}
