@@ -12,9 +12,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
     /// handles stay valid. Leaves are packed full; their parents keep room
-    /// for two more leaves (14 of 16) where that adds no level, for the
-    /// splits the first frames of movement bring. All boxes are checked first: if any is invalid,
-    /// nothing is inserted and the error is returned.
+    /// for more leaves (14 of 16 at the default width) where that adds no
+    /// level, for the splits the first frames of movement bring.
+    ///
+    /// All boxes are checked first: if any is invalid, nothing is inserted
+    /// and the error is returned.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -127,9 +129,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// standard scene, four seeds, after 600 frames: 3–6 % fewer nodes per
     /// box query, 3–6 % fewer per incoherent ray, 1.5–3.5 % fewer self-join
     /// node pairs; on the fresh tree, box queries and the self join stay
-    /// within 1 % of the full packing's visits, rays within 3 % (15 leaves
-    /// per level-1 node gained nothing, 12 lost; slack
-    /// in the leaves themselves made the fresh tree worse, see the README).
+    /// within 1 % of the full packing's visits, rays within 3 %. 15 leaves
+    /// per level-1 node gained nothing and 12 lost; room in the leaves
+    /// themselves made the fresh tree worse (see the README).
     fn groups_at(level: u16, entries: usize) -> usize {
         let full = entries.div_ceil(W);
         if level != 1 {
