@@ -240,12 +240,25 @@ fn join_lane_pairs<const W: usize>(
     let a_lanes = masks(na, region, used_lanes(na));
     let b_lanes = masks(nb, region, used_lanes(nb));
     // The side with fewer lanes near the other goes outside: each of its
-    // lanes costs one test of the other side's groups.
-    if lane_count(a_lanes) <= lane_count(b_lanes) {
-        lane_pairs(na, a_lanes, nb, |_| b_lanes, true, test, ws, masks, emit)
+    // lanes costs one test of the other side's groups. Chosen by value, so
+    // that one copy of `lane_pairs` serves both ways.
+    let a_outside = lane_count(a_lanes) <= lane_count(b_lanes);
+    let (outer, outer_lanes, inner, inner_lanes) = if a_outside {
+        (na, a_lanes, nb, b_lanes)
     } else {
-        lane_pairs(nb, b_lanes, na, |_| a_lanes, false, test, ws, masks, emit)
-    }
+        (nb, b_lanes, na, a_lanes)
+    };
+    lane_pairs(
+        outer,
+        outer_lanes,
+        inner,
+        |_| inner_lanes,
+        a_outside,
+        test,
+        ws,
+        masks,
+        emit,
+    )
 }
 
 /// Each lane `o` of `outer` among `outer_lanes` against the lanes of
@@ -253,8 +266,17 @@ fn join_lane_pairs<const W: usize>(
 /// in the groups of lanes that hold such lanes ([`Node::overlap_mask_among`]:
 /// after a join's region test a leaf keeps about two of its lanes, so most
 /// groups of four hold none). `outer_is_a` tells which node is `na`, so
-/// that either can go outside. With `outer` and `inner` the same internal node, each
-/// child is also paired with itself.
+/// that either can go outside. With `outer` and `inner` the same internal
+/// node, each child is also paired with itself.
+///
+/// Two passes: the first tests every outer lane and only records its mask,
+/// the second visits the lanes that have any partner. Most lanes have none
+/// or one, at random, so a loop that tested a lane and then branched on its
+/// answer was mispredicted about every other lane; with the tests apart,
+/// the branches follow the few lanes with partners. Self join in a probe,
+/// alternating builds: 3.2–3.5 → 2.8–2.9 ms, the same pairs in the same
+/// order (a leaf with itself 0.9 → 0.7 ms of it, pairs of internal nodes
+/// about 0.85 → 0.7 ms, pairs of two leaves unchanged at 1.5 ms).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn lane_pairs<const W: usize>(
@@ -270,13 +292,28 @@ fn lane_pairs<const W: usize>(
 ) -> ControlFlow<()> {
     let a_b = |o: u32, n: u32| if outer_is_a { (o, n) } else { (n, o) };
     let same_node = std::ptr::eq(outer, inner);
+    let mut partners = [0u32; W];
+    let mut with_partners = 0u32;
     let mut lanes = outer_lanes;
     while lanes != 0 {
         let o = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
+        let mask = masks(inner, &grow(&outer.lane_box(o), test.reach), inner_lanes(o));
+        partners[o] = mask;
+        with_partners |= ((mask != 0) as u32) << o;
+    }
+    // A child of an internal node paired with itself needs no partner.
+    let mut lanes = if same_node && !outer.is_leaf() {
+        outer_lanes
+    } else {
+        with_partners
+    };
+    while lanes != 0 {
+        let o = lanes.trailing_zeros() as usize;
+        lanes &= lanes - 1;
+        let mut mask = partners[o];
         let lane_box = outer.lane_box(o);
         let lane_reach = grow(&lane_box, test.reach);
-        let mut mask = masks(inner, &lane_reach, inner_lanes(o));
         if same_node && !outer.is_leaf() {
             ws.join_stack.push(JoinItem {
                 a: outer.child[o],
