@@ -70,8 +70,8 @@ use std::time::{Duration, Instant};
 use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::TownScene;
 use bevy_rtree::{
-    Aabb, CullMode, Frustum, JoinMode, PreparedRay, ProxyId, QueryWorkspace, RTree, Ray, RayHit,
-    RayMode, RayResults,
+    Aabb, CullMode, Frustum, JoinMode, PreparedRay, QueryWorkspace, Ray, RayHit, RayMode,
+    RayResults,
 };
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use glam::Vec3;
@@ -82,7 +82,8 @@ use parry3d::query::Ray as ParryRay;
 use rstar::{AABB as RstarEnvelope, SelectionFunction};
 
 mod common;
-use common::{RstarBox, bench_answers, bench_list, sorted, to_parry, to_rstar};
+use common::indexes::{BevyIndex, ParryIndex, RstarIndex, grown, parry_node_box};
+use common::{RstarBox, bench_answers, bench_list, sorted, to_parry};
 
 /// The scene's seed (the same as the other benchmark's).
 const SEED: u64 = 0x5EED_2024;
@@ -193,128 +194,6 @@ fn within_euclidean(a: &Aabb, b: &Aabb, d: f64) -> bool {
         sum += g * g;
     }
     sum <= d * d
-}
-
-/// `aabb` grown by `d` on every side, rounded outward, so that an overlap
-/// test against it never dismisses a pair within `d`.
-fn grown(aabb: &Aabb, d: f32) -> Aabb {
-    Aabb {
-        min: Vec3::from_array((aabb.min - Vec3::splat(d)).to_array().map(f32::next_down)),
-        max: Vec3::from_array((aabb.max + Vec3::splat(d)).to_array().map(f32::next_up)),
-    }
-}
-
-// ---------------------------------------------------------------------------
-// Conversions.
-
-fn parry_node_box(node: &BvhNode) -> (Vec3, Vec3) {
-    (
-        Vec3::from_array(node.mins().to_array()),
-        Vec3::from_array(node.maxs().to_array()),
-    )
-}
-
-// ---------------------------------------------------------------------------
-// Maintained indexes. Each covers the entities of `range`; keys are entity
-// indices, parry3d leaf indices are entity index minus `range.start`.
-
-struct BevyIndex {
-    tree: RTree<u32>,
-    ids: Vec<ProxyId>,
-    range: Range<usize>,
-}
-
-impl BevyIndex {
-    fn new(boxes: &[Aabb], range: Range<usize>) -> Self {
-        let mut tree = RTree::new();
-        let ids = tree
-            .insert_bulk(range.clone().map(|i| (i as u32, boxes[i])))
-            .expect("scene boxes are valid");
-        BevyIndex { tree, ids, range }
-    }
-
-    fn apply(&mut self, moved: &[u32], boxes: &[Aabb]) {
-        for &i in moved {
-            let i = i as usize;
-            if self.range.contains(&i) {
-                self.tree
-                    .update(self.ids[i - self.range.start], boxes[i])
-                    .expect("scene boxes are valid");
-            }
-        }
-        self.tree.optimize(usize::MAX);
-    }
-}
-
-struct ParryIndex {
-    bvh: Bvh,
-    workspace: BvhWorkspace,
-    range: Range<usize>,
-}
-
-impl ParryIndex {
-    fn new(boxes: &[Aabb], range: Range<usize>) -> Self {
-        let leaves: Vec<ParryAabb> = boxes[range.clone()].iter().map(to_parry).collect();
-        ParryIndex {
-            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
-            workspace: BvhWorkspace::default(),
-            range,
-        }
-    }
-
-    fn apply(&mut self, moved: &[u32], boxes: &[Aabb]) {
-        for &i in moved {
-            let i = i as usize;
-            if self.range.contains(&i) {
-                let leaf = (i - self.range.start) as u32;
-                self.bvh
-                    .insert_or_update_partially(to_parry(&boxes[i]), leaf, 0.0);
-            }
-        }
-        self.bvh.refit(&mut self.workspace);
-        self.bvh.optimize_incremental(&mut self.workspace);
-    }
-}
-
-struct RstarIndex {
-    tree: rstar::RTree<RstarBox>,
-    /// The item each entity has in the tree now (`remove` needs it).
-    current: Vec<RstarBox>,
-    range: Range<usize>,
-    /// Every stored box is the entity's box grown by this (0: exact).
-    grow: f32,
-}
-
-impl RstarIndex {
-    fn item(aabb: &Aabb, key: usize, grow: f32) -> RstarBox {
-        let stored = if grow > 0.0 { grown(aabb, grow) } else { *aabb };
-        to_rstar(&stored, key as u32)
-    }
-
-    fn new(boxes: &[Aabb], range: Range<usize>, grow: f32) -> Self {
-        let current: Vec<RstarBox> = range
-            .clone()
-            .map(|i| Self::item(&boxes[i], i, grow))
-            .collect();
-        RstarIndex {
-            tree: rstar::RTree::bulk_load(current.clone()),
-            current,
-            range,
-            grow,
-        }
-    }
-
-    fn apply(&mut self, moved: &[u32], boxes: &[Aabb]) {
-        for &i in moved {
-            let i = i as usize;
-            if self.range.contains(&i) {
-                let new = Self::item(&boxes[i], i, self.grow);
-                let old = std::mem::replace(&mut self.current[i - self.range.start], new);
-                assert!(self.tree.remove(&old).is_some(), "rstar lost entity {i}");
-                self.tree.insert(new);
-            }
-        }
-    }
 }
 
 // ---------------------------------------------------------------------------

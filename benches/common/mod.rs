@@ -3,6 +3,8 @@
 //! types.
 #![allow(dead_code, reason = "each bench uses the helpers it needs")]
 
+pub mod indexes;
+
 use std::hint::black_box;
 use std::time::Duration;
 
