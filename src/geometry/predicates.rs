@@ -188,6 +188,30 @@ pub(crate) fn sphere_box_distance_sq(center: Vec3, radius_sq: f64, aabb: &Aabb) 
     if d2 <= radius_sq { Some(d2) } else { None }
 }
 
+/// A box that every box the sphere predicate accepts for (`center`,
+/// `radius`) overlaps: the cube `center ± radius`, widened on every side by
+/// `(|center| + radius)·2⁻²⁰`. Traversals test a node's lanes against it
+/// four or sixteen at a time, then decide only the lanes it keeps with the
+/// exact `f64` test.
+///
+/// Why the widening: the predicate decides on `f64` gaps that are rounded,
+/// so it accepts some boxes whose real gap exceeds the radius by a few
+/// `2⁻⁵³` of the coordinates, and the cube's corners are rounded to `f32`,
+/// whose step near zero (where `center ± radius` may fall) is far smaller
+/// than those errors. `2⁻²⁰` of the coordinates' magnitude covers both with
+/// room to spare: about a millimetre a kilometre from the origin, a few
+/// extra candidates that the exact test then rejects. A radius so large
+/// that the sum overflows gives an infinite cube, which keeps every lane.
+#[inline]
+pub(crate) fn sphere_reach(center: Vec3, radius: f32) -> Aabb {
+    let r = Vec3::splat(radius);
+    let slack = (center.abs() + r) * (1.0 / 1_048_576.0);
+    Aabb {
+        min: center - r - slack,
+        max: center + r + slack,
+    }
+}
+
 /// The gap between two boxes along one axis (0 when their ranges overlap).
 #[inline]
 pub(crate) fn axis_gap(a: &Aabb, b: &Aabb, axis: usize) -> f64 {
@@ -222,5 +246,93 @@ pub(crate) fn check_distance(distance: f32) -> Result<f64, super::SpatialError> 
         Ok(distance as f64)
     } else {
         Err(super::SpatialError::InvalidDistance)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Coordinates where rounding bites: zero, the smallest floats, the
+    /// scene's scale and the largest allowed coordinate, each either side.
+    const MAGNITUDES: [f32; 9] = [0.0, 1e-40, 1e-20, 0.5, 10.0, 1000.0, 1e7, 1e12, 1e15];
+
+    /// A small xorshift generator, so the test needs no dependency.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            self.0
+        }
+
+        fn pick<T: Copy>(&mut self, from: &[T]) -> T {
+            from[(self.next() % from.len() as u64) as usize]
+        }
+
+        /// A coordinate: a signed magnitude, sometimes nudged by a few
+        /// `f32` steps.
+        fn coordinate(&mut self) -> f32 {
+            let mut v = self.pick(&MAGNITUDES);
+            if self.next().is_multiple_of(2) {
+                v = -v;
+            }
+            for _ in 0..self.next() % 3 {
+                v = if self.next().is_multiple_of(2) {
+                    v.next_up()
+                } else {
+                    v.next_down()
+                };
+            }
+            v
+        }
+    }
+
+    #[test]
+    fn every_box_the_sphere_predicate_accepts_overlaps_the_sphere_reach() {
+        let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+        let radii = [0.0, 1e-40, 1e-20, 0.5, 10.0, 1e3, 1e10, 1e30, f32::MAX];
+        let mut accepted = 0;
+        for _ in 0..200_000 {
+            let center = Vec3::new(rng.coordinate(), rng.coordinate(), rng.coordinate());
+            let radius: f32 = rng.pick(&radii);
+            // Boxes whose near face lies about `radius` from the centre on
+            // one axis, from either side, or anywhere.
+            let axis = (rng.next() % 3) as usize;
+            let mut min = Vec3::new(rng.coordinate(), rng.coordinate(), rng.coordinate());
+            let mut max = min;
+            match rng.next() % 3 {
+                0 => min[axis] = center[axis] + radius + rng.coordinate() * 1e-7,
+                1 => max[axis] = center[axis] - radius + rng.coordinate() * 1e-7,
+                _ => {}
+            }
+            let (min, max) = (min.min(max), min.max(max));
+            let Ok(aabb) = Aabb::new(min, max) else {
+                continue;
+            };
+            let radius_sq = (radius as f64) * (radius as f64);
+            if sphere_box_distance_sq(center, radius_sq, &aabb).is_some() {
+                accepted += 1;
+                let reach = sphere_reach(center, radius);
+                assert!(
+                    boxes_overlap(&aabb, &reach),
+                    "{aabb:?} is within {radius} of {center:?} but outside {reach:?}"
+                );
+            }
+        }
+        assert!(accepted > 20_000, "only {accepted} boxes were within reach");
+    }
+
+    #[test]
+    fn the_sphere_reach_covers_a_face_next_to_zero() {
+        // The gap 10 + 1e-20 rounds to 10 in `f64`, so the predicate accepts
+        // the box, although `center + radius` is 0 and the next `f32` above
+        // it is far below 1e-20.
+        let center = Vec3::new(-10.0, 0.0, 0.0);
+        let aabb = Aabb::new(Vec3::new(1e-20, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0)).unwrap();
+        assert_eq!(sphere_box_distance_sq(center, 100.0, &aabb), Some(100.0));
+        assert!(boxes_overlap(&aabb, &sphere_reach(center, 10.0)));
     }
 }

@@ -129,15 +129,6 @@ fn lane_count(mask: u32) -> u32 {
     (BITS[(mask & 0xff) as usize] + BITS[((mask >> 8) & 0xff) as usize]) as u32
 }
 
-#[inline]
-fn used_lanes<const W: usize>(node: &Node<W>) -> u32 {
-    if node.len() >= 32 {
-        u32::MAX
-    } else {
-        (1u32 << node.len()) - 1
-    }
-}
-
 /// A pair of nodes still to be joined, with the region their pairs can lie
 /// in: the intersection of both nodes' bounds grown by the distance (for
 /// the root pair, all of space).
@@ -202,7 +193,7 @@ fn children_in_region<'a, const W: usize>(
     reach: f32,
     masks: impl LaneMasks<W> + 'a,
 ) -> impl Iterator<Item = (u32, Aabb)> + 'a {
-    let mut mask = masks(node, region, used_lanes(node));
+    let mut mask = masks(node, region, node.used_lanes());
     std::iter::from_fn(move || {
         if mask == 0 {
             return None;
@@ -233,13 +224,13 @@ fn join_lane_pairs<const W: usize>(
     emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     if same_node {
-        let lanes = used_lanes(na);
+        let lanes = na.used_lanes();
         // Each lane meets the lanes above it only: each unordered pair once.
         let above = |i: usize| lanes & !((2u32 << i) - 1);
         return lane_pairs(na, lanes, na, above, true, test, ws, masks, emit);
     }
-    let a_lanes = masks(na, region, used_lanes(na));
-    let b_lanes = masks(nb, region, used_lanes(nb));
+    let a_lanes = masks(na, region, na.used_lanes());
+    let b_lanes = masks(nb, region, nb.used_lanes());
     // The side with fewer lanes near the other goes outside: each of its
     // lanes costs one test of the other side's groups. Chosen by value, so
     // that one copy of `lane_pairs` serves both ways.

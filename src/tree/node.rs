@@ -159,6 +159,16 @@ impl<const W: usize> Node<W> {
         self.child[..self.len()].iter().position(|&c| c == child)
     }
 
+    /// Bit `i` set for each used lane `i` (`0..len`).
+    #[inline]
+    pub fn used_lanes(&self) -> u32 {
+        if self.len() >= 32 {
+            u32::MAX
+        } else {
+            (1u32 << self.len()) - 1
+        }
+    }
+
     /// Bit `i` set iff lane `i`'s box overlaps `query` (closed boxes).
     ///
     /// Four lanes at a time in `glam::Vec4` (glam's SIMD backend: SSE2 on
