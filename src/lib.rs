@@ -114,7 +114,7 @@
 //! | raycasts | [`RTree::visit_ray`], [`RTree::cast_rays`] (batched) | `cast_ray`, `cast_ray_all`, `ray_hits_any` |
 //! | distance joins | [`RTree::visit_self_join`], [`RTree::visit_cross_join`], [`RTree::visit_self_join_moved`] | `self_join`, `cross_join`, `*_into` |
 //! | sphere overlap / within radius (distance to the closed box `<= r`) | [`RTree::visit_sphere`] | `overlapping_sphere`, `overlapping_sphere_into`, `any_overlapping_sphere`, `within_radius`, `within_radius_into` |
-//! | k nearest neighbours (by `(distance, key)`, optional inclusive max distance) | [`RTree::visit_nearest`] (best first) | `nearest`, `nearest_into` |
+//! | k nearest neighbours (by `(distance, key)`, optional inclusive max distance) | [`RTree::visit_nearest`] (depth first, nearest child first) | `nearest`, `nearest_into` |
 //!
 //! Every query takes a [`QueryWorkspace`] (or makes one): keep one per
 //! system and a frame's queries do not allocate. Its [`QueryStats`] count

@@ -439,7 +439,7 @@ fn distances_far_from_the_origin_stay_exact() {
 }
 
 #[test]
-fn best_first_search_in_a_town_matches_the_oracle_and_prunes() {
+fn nearest_first_search_in_a_town_matches_the_oracle_and_prunes() {
     let (scene, tree, _) = common::town_tree(20_000, 7);
     let mut oracle = BruteForce::default();
     for (i, b) in scene.boxes().iter().enumerate() {
@@ -459,7 +459,7 @@ fn best_first_search_in_a_town_matches_the_oracle_and_prunes() {
             if k == 1 {
                 assert!(
                     stats.nodes_visited * 20 < tree.node_count() as u64,
-                    "best first visits few nodes: {stats:?} of {}",
+                    "the search visits few nodes: {stats:?} of {}",
                     tree.node_count()
                 );
             }

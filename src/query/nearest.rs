@@ -3,11 +3,22 @@
 //!
 //! The distance from a point to an entry is the Euclidean distance to the
 //! entry's closed exact box (`0` inside or on it), decided by its square in
-//! `f64`. The search is best first: a priority queue holds nodes keyed by the
-//! squared distance to their bound, the nearest node is expanded next, and the
-//! search ends once the nearest queued node is strictly further than the
-//! current `k`-th best. Nodes at exactly that distance are still expanded,
-//! because they may hold an entry at the same distance with a smaller key.
+//! `f64`. The search is depth first, each node's children nearest first
+//! (by the squared distance to their bound), so the first leaves reached
+//! are near the point and the limit (the current `k`-th best) shrinks
+//! early; a node whose bound is strictly further than the limit is
+//! skipped. Nodes at exactly that distance are still visited, because they
+//! may hold an entry at the same distance with a smaller key.
+//!
+//! Each node's lanes are first tested, four at a time, against the cube
+//! that holds every box within the limit (`predicates::sphere_reach`); only
+//! the lanes in it take the exact `f64` test. Measured on the standard
+//! scene (`cargo bench --bench proximity`), 1,000 queries for the 8
+//! nearest: 2.81 ms with the earlier best-first search, whose priority
+//! queue took a push for every child within the limit, and 2.21 ms now,
+//! although the depth-first walk visits more nodes (14.9 against about 13
+//! per query). Moving only the nearest child to the top, unsorted
+//! otherwise, took the same time for 16.1 nodes per query.
 
 use std::cmp::Ordering;
 use std::ops::ControlFlow;
@@ -15,7 +26,9 @@ use std::ops::ControlFlow;
 use glam::Vec3;
 
 use super::QueryWorkspace;
-use crate::geometry::predicates::{check_point, check_radius_sq, point_box_distance_sq};
+use crate::geometry::predicates::{
+    check_point, check_radius_sq, point_box_distance_sq, sphere_reach,
+};
 use crate::geometry::{Aabb, SpatialError};
 use crate::tree::RTree;
 
@@ -65,36 +78,30 @@ impl<K: Ord> Neighbor<K> {
     }
 }
 
-/// A node waiting in the best-first queue, ordered so that
-/// `BinaryHeap` (a max-heap) pops the smallest distance first.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct QueuedNode {
-    distance_sq: f64,
-    node: u32,
+/// The box holding every box whose squared distance from `point` is at
+/// most `limit_sq` by the `f64` predicate: the sphere reach of a radius
+/// just above `sqrt(limit_sq)` (infinite for an infinite limit).
+fn reach_cube(point: Vec3, limit_sq: f64) -> Aabb {
+    // `as f32` may round down and `sqrt` is rounded: one step up makes the
+    // radius's exact square at least `limit_sq`.
+    let radius = (limit_sq.sqrt() as f32).next_up();
+    sphere_reach(point, radius)
 }
 
-impl Ord for QueuedNode {
-    fn cmp(&self, other: &Self) -> Ordering {
-        other
-            .distance_sq
-            .total_cmp(&self.distance_sq)
-            .then(other.node.cmp(&self.node))
+/// Orders a node's pushed children by distance, farthest first, so that
+/// the nearest is popped next. Children are few: an insertion sort, stable,
+/// so equal distances keep lane order.
+fn far_to_near(pushed: &mut [(u32, f64)]) {
+    for next in 1..pushed.len() {
+        let item = pushed[next];
+        let mut slot = next;
+        while slot > 0 && pushed[slot - 1].1 < item.1 {
+            pushed[slot] = pushed[slot - 1];
+            slot -= 1;
+        }
+        pushed[slot] = item;
     }
 }
-
-impl PartialOrd for QueuedNode {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl PartialEq for QueuedNode {
-    fn eq(&self, other: &Self) -> bool {
-        self.cmp(other) == Ordering::Equal
-    }
-}
-
-impl Eq for QueuedNode {}
 
 /// Restores the max-heap order (by [`Neighbor::rank`]) after a push at `i`.
 fn sift_up<K: Ord>(heap: &mut [Neighbor<K>], mut i: usize) {
@@ -138,9 +145,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// `max_distance²` (`None`: unbounded) and becomes whatever `visit`
     /// returns in `Continue(limit)` when that is smaller; `Break` stops.
     ///
-    /// Nodes are expanded nearest first and skipped once their bound is
-    /// strictly beyond the limit, so entries at exactly the limit are still
-    /// reported. Entries come roughly nearest first, not sorted.
+    /// The walk is depth first, each node's children nearest first, and
+    /// skips a node once its bound is strictly beyond the limit, so entries
+    /// at exactly the limit are still reported. Entries come roughly
+    /// nearest first, not sorted.
     ///
     /// Errors, checked before any work: [`SpatialError::InvalidBox`] if
     /// `point` is not finite or beyond [`MAX_COORD`](crate::MAX_COORD);
@@ -178,32 +186,39 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     {
         check_point(point)?;
         let limit = limit_sq(max_distance)?;
-        self.best_first(point, limit, ws, visit);
+        self.nearest_first(point, limit, ws, visit);
         Ok(())
     }
 
-    /// The best-first traversal behind [`RTree::visit_nearest`], on checked
-    /// input.
-    fn best_first<F>(&self, point: Vec3, mut limit: f64, ws: &mut QueryWorkspace, mut visit: F)
+    /// The traversal behind [`RTree::visit_nearest`], on checked input:
+    /// depth first, each node's children nearest first.
+    fn nearest_first<F>(&self, point: Vec3, mut limit: f64, ws: &mut QueryWorkspace, mut visit: F)
     where
         F: FnMut(K, &Aabb, f64) -> ControlFlow<(), f64>,
     {
-        let queue = &mut ws.nearest;
-        queue.clear();
-        queue.push(QueuedNode {
-            distance_sq: 0.0,
-            node: self.root(),
-        });
-        while let Some(QueuedNode { distance_sq, node }) = queue.pop() {
-            // The queue pops in distance order: everything left is as far.
+        let stack = &mut ws.nearest;
+        stack.clear();
+        stack.push((self.root(), 0.0));
+        // The cube that holds every box within the limit, recomputed only
+        // when the limit shrinks; an infinite limit keeps every lane.
+        let mut reach_of = f64::INFINITY;
+        let mut reach = reach_cube(point, reach_of);
+        while let Some((index, distance_sq)) = stack.pop() {
             if distance_sq > limit {
-                break;
+                continue;
             }
-            let node = self.node(node);
+            if limit < reach_of {
+                reach_of = limit;
+                reach = reach_cube(point, limit);
+            }
+            let node = self.node(index);
             ws.stats.nodes_visited += 1;
+            let mut near = node.overlap_mask(&reach) & node.used_lanes();
             if node.is_leaf() {
                 ws.stats.entries_tested += node.len() as u64;
-                for lane in 0..node.len() {
+                while near != 0 {
+                    let lane = near.trailing_zeros() as usize;
+                    near &= near - 1;
                     let aabb = node.lane_box(lane);
                     let d2 = point_box_distance_sq(point, &aabb);
                     if d2 > limit {
@@ -220,15 +235,16 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     }
                 }
             } else {
-                for lane in 0..node.len() {
+                let base = stack.len();
+                while near != 0 {
+                    let lane = near.trailing_zeros() as usize;
+                    near &= near - 1;
                     let d2 = point_box_distance_sq(point, &node.lane_box(lane));
                     if d2 <= limit {
-                        queue.push(QueuedNode {
-                            distance_sq: d2,
-                            node: node.child[lane],
-                        });
+                        stack.push((node.child[lane], d2));
                     }
                 }
+                far_to_near(&mut stack[base..]);
             }
         }
     }
@@ -274,7 +290,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out.clear();
         // `out` is a max-heap by (distance_sq, key) of the best `k` so far:
         // its top is the one to evict, and its distance the search limit.
-        self.best_first(point, limit, ws, |key, _, distance_sq| {
+        self.nearest_first(point, limit, ws, |key, _, distance_sq| {
             let candidate = Neighbor { key, distance_sq };
             if out.len() < k {
                 let last = out.len();
@@ -325,5 +341,40 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             &mut out,
         )?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::predicates::boxes_overlap;
+
+    #[test]
+    fn the_reach_cube_holds_every_box_at_exactly_the_limit() {
+        // The hardest case: a box whose distance is the limit itself, at
+        // scales from the origin to far out, with gaps on one to three
+        // axes, so that the limit is rarely the square of an `f32`.
+        let mut checked = 0;
+        for scale in [1e-3f32, 1.0, 37.0, 1e4, 1e9, 1e14] {
+            for i in 0..400u32 {
+                let f = |k: u32| ((i * k) % 97) as f32 / 97.0 - 0.5;
+                let point = Vec3::new(f(7), f(13), f(29)) * scale;
+                let gap = Vec3::new(f(3).max(0.0), f(5).max(0.0), f(11).max(0.0)) * scale;
+                let min = point + gap;
+                let aabb = Aabb::new(min, min + Vec3::splat(scale)).unwrap();
+                let limit = point_box_distance_sq(point, &aabb);
+                assert!(
+                    boxes_overlap(&aabb, &reach_cube(point, limit)),
+                    "{aabb:?} at {limit} from {point:?}"
+                );
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 2_400);
+        // An infinite limit keeps everything; a zero limit the boxes that
+        // hold the point.
+        let unit = Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap();
+        assert!(boxes_overlap(&unit, &reach_cube(Vec3::splat(1e15), f64::INFINITY)));
+        assert!(boxes_overlap(&unit, &reach_cube(Vec3::ONE, 0.0)));
     }
 }

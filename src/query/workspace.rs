@@ -36,8 +36,9 @@ pub struct QueryWorkspace {
     pub(crate) join_stack: Vec<super::join::JoinItem>,
     /// Sorted proxy indices of the moved entries of an incremental join.
     pub(crate) moved: Vec<u32>,
-    /// Best-first queue of nodes by squared distance (nearest neighbours).
-    pub(crate) nearest: std::collections::BinaryHeap<super::nearest::QueuedNode>,
+    /// Nearest-neighbour traversal stack: node index and the squared
+    /// distance from the query point to its bound.
+    pub(crate) nearest: Vec<(u32, f64)>,
     /// Per-ray state of batched raycasts.
     pub(crate) rays: super::ray::RayBatchScratch,
     pub(crate) stats: QueryStats,
