@@ -374,7 +374,10 @@ mod tests {
         // An infinite limit keeps everything; a zero limit the boxes that
         // hold the point.
         let unit = Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap();
-        assert!(boxes_overlap(&unit, &reach_cube(Vec3::splat(1e15), f64::INFINITY)));
+        assert!(boxes_overlap(
+            &unit,
+            &reach_cube(Vec3::splat(1e15), f64::INFINITY)
+        ));
         assert!(boxes_overlap(&unit, &reach_cube(Vec3::ONE, 0.0)));
     }
 }
