@@ -46,6 +46,13 @@ impl Aabb {
         max: Vec3::splat(f32::NEG_INFINITY),
     };
 
+    /// The box of all space (`min = -inf`, `max = +inf`): contains every
+    /// box. Not valid as an entry.
+    pub(crate) const EVERYWHERE: Aabb = Aabb {
+        min: Vec3::splat(f32::NEG_INFINITY),
+        max: Vec3::splat(f32::INFINITY),
+    };
+
     /// A checked box from its corners.
     pub fn new(min: Vec3, max: Vec3) -> Result<Aabb, SpatialError> {
         let aabb = Aabb { min, max };

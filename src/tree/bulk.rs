@@ -94,6 +94,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .collect();
         self.nodes.clear();
         self.churn.clear();
+        self.held_bounds.clear();
         self.free_nodes.clear();
         self.dirty.clear();
         let mut level = 0u16;

@@ -58,11 +58,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     fn choose_path(&mut self, bound: &Aabb, level: u16) -> u32 {
         let mut current = self.root;
         while self.nodes[current as usize].level > level {
-            let node = &mut self.nodes[current as usize];
+            let node = &self.nodes[current as usize];
             let lane = node.least_growth_lane(bound);
             let grown = node.lane_box(lane).union(bound);
-            node.set_lane_box(lane, &grown);
-            current = node.child[lane];
+            let child = node.child[lane];
+            self.set_child_bound(current, lane, &grown);
+            current = child;
         }
         current
     }
@@ -130,7 +131,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let lane = self.nodes[parent as usize]
                 .lane_of(node)
                 .expect("parent links its child");
-            self.nodes[parent as usize].set_lane_box(lane, &node_bound);
+            self.set_child_bound(parent, lane, &node_bound);
             self.add_to_node(parent, sibling_entry);
         }
         holder

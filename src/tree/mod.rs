@@ -88,6 +88,13 @@ pub struct RTree<K, const W: usize = 16> {
     /// Restructuring moves absorbed per node since its last repack, indexed
     /// like `nodes`; drives `optimize`.
     churn: Vec<u32>,
+    /// The bound each node's parent holds for it (a copy of that lane box;
+    /// all space for the root, which no bound confines; meaningless for free
+    /// nodes), indexed like `nodes`. A move that leaves its enlarged box
+    /// checks its leaf's bound here, in one line that stays in the
+    /// second-level cache, instead of reading the leaf's parent link and
+    /// then the parent's lanes.
+    held_bounds: Vec<Aabb>,
     free_proxies: Vec<u32>,
     len: usize,
     settings: TreeSettings,
@@ -139,6 +146,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             keys: Vec::new(),
             stamps: Vec::new(),
             churn: vec![0],
+            held_bounds: vec![Aabb::EVERYWHERE],
             free_proxies: Vec::new(),
             len: 0,
             settings,
@@ -221,6 +229,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.nodes.push(Node::empty(0, NIL));
         self.churn.clear();
         self.churn.push(0);
+        self.held_bounds.clear();
+        self.held_bounds.push(Aabb::EVERYWHERE);
         self.free_nodes.clear();
         self.dirty.clear();
         self.root = 0;
@@ -262,11 +272,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             Some(index) => {
                 self.nodes[index as usize] = Node::empty(level, parent);
                 self.churn[index as usize] = 0;
+                self.held_bounds[index as usize] = Aabb::EVERYWHERE;
                 index
             }
             None => {
                 self.nodes.push(Node::empty(level, parent));
                 self.churn.push(0);
+                self.held_bounds.push(Aabb::EVERYWHERE);
                 (self.nodes.len() - 1) as u32
             }
         }
@@ -334,8 +346,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             proxy.leaf = node;
             proxy.lane = lane as u32;
         } else {
+            self.held_bounds[child as usize] = n.lane_box(lane);
             self.nodes[child as usize].parent = node;
         }
+    }
+
+    /// Sets the bound internal node `parent` holds in `lane`, and its
+    /// child's copy of it (`held_bounds`).
+    fn set_child_bound(&mut self, parent: u32, lane: usize, bound: &Aabb) {
+        let p = &mut self.nodes[parent as usize];
+        debug_assert!(!p.is_leaf());
+        p.set_lane_box(lane, bound);
+        self.held_bounds[p.child[lane] as usize] = *bound;
     }
 }
 

@@ -10,11 +10,14 @@
 //! for the leaf of the move a few places ahead while it applies the current
 //! one: a frame's 10,000 moves took 12 % less time
 //! (`cargo bench --bench tree -- frame/moves`). It asks only for the lane
-//! bounds, which a move inside its enlarged box writes, and the parent
-//! link, which a move out of it reads next (seven of the leaf's eight
-//! lines): the loop is bound by how many lines can be in flight at once,
-//! and the whole node cost 5–6 % more time (median frame of 600, 0.37–0.38
-//! against 0.35–0.36 ms); the parent link's line then saved 2–3 %. Since its checking pass
+//! bounds, which a move inside its enlarged box writes (six of the leaf's
+//! eight lines): the loop is bound by how many lines can be in flight at
+//! once, and the whole node cost 5–6 % more time (median frame of 600,
+//! 0.37–0.38 against 0.35–0.36 ms). A move out of its enlarged box reads
+//! its leaf's bound from the tree's dense copy of held bounds, which stays
+//! in the second-level cache, so neither the leaf's parent link nor the
+//! parent is asked for (with the parent link's line asked for as well, as
+//! before that copy, or the copy's line, the same time). Since its checking pass
 //! reads only the dense handle stamps, it asks for the entries' records
 //! ahead as well (one line each). `optimize` asks for a repacked node's
 //! leaves and their entries' records before gathering them (15 % less time
@@ -38,15 +41,13 @@ impl<K, const W: usize> RTree<K, W> {
     }
 
     /// Asks the CPU to start loading the lane bounds of the node at `index`
-    /// and the line holding its parent link (seven of its eight lines at the
-    /// default width): what a move inside its enlarged box writes, and what
-    /// a move out of it reads next.
+    /// (six of its eight lines at the default width): what a move inside its
+    /// enlarged box writes.
     #[inline(always)]
     pub(crate) fn prefetch_leaf_for_move(&self, index: u32) {
         if let Some(node) = self.nodes.get(index as usize) {
             prefetch_lines(&node.min);
             prefetch_lines(&node.max);
-            prefetch_lines(&node.parent);
         }
     }
 

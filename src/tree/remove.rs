@@ -3,7 +3,7 @@
 
 use super::node::NIL;
 use super::{Entry, RTree};
-use crate::geometry::SpatialError;
+use crate::geometry::{Aabb, SpatialError};
 use crate::tree::ProxyId;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
@@ -84,13 +84,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.maintenance.condensed_nodes += 1;
             } else {
                 let bound = self.node_bound(current);
-                let holder = &mut self.nodes[parent as usize];
-                if holder.lane_box(lane) == bound {
+                if self.nodes[parent as usize].lane_box(lane) == bound {
                     // Nothing above can change: every ancestor already holds
                     // this bound and lost no child.
                     break;
                 }
-                holder.set_lane_box(lane, &bound);
+                self.set_child_bound(parent, lane, &bound);
             }
             current = parent;
         }
@@ -113,6 +112,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.free_node(self.root);
             self.root = child;
             self.nodes[child as usize].parent = NIL;
+            self.held_bounds[child as usize] = Aabb::EVERYWHERE;
         }
     }
 }

@@ -68,9 +68,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// On large trees it is faster than that loop: the checking pass reads
     /// only the handles' stamps (4 bytes each, in a dense array that stays in
     /// cache), and while the applying pass applies one move it asks for the
-    /// record of the move sixteen places ahead and the lane bounds and
-    /// parent link of the leaf of the move eight places ahead, so their loads
-    /// overlap (on the standard scene's 10,000 moves per frame, 25 to 33 %
+    /// record of the move sixteen places ahead and the lane bounds of the
+    /// leaf of the move eight places ahead, so their loads overlap (on the standard scene's 10,000 moves per frame, 25 to 33 %
     /// less time than one `update` per move in this machine's runs).
     ///
     /// ```
@@ -159,17 +158,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Whether `fat` fits the bound the parent holds for `leaf` (the root
-    /// leaf has no bound to leave).
+    /// leaf has no bound to leave: its copy is all space).
     fn leaf_bound_contains(&self, leaf: u32, fat: &Aabb) -> bool {
-        let parent = self.nodes[leaf as usize].parent;
-        if parent == NIL {
-            return true;
-        }
-        let p = &self.nodes[parent as usize];
-        match p.lane_of(leaf) {
-            Some(lane) => p.lane_box(lane).contains(fat),
-            None => false,
-        }
+        self.held_bounds[leaf as usize].contains(fat)
     }
 
     /// Grows the bound the parent holds for `leaf` to take `fat`, if the
@@ -178,26 +169,17 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// the root has no bound to stay within, and is left to reinsertion.
     fn try_grow_leaf(&mut self, leaf: u32, fat: &Aabb) -> bool {
         let parent = self.nodes[leaf as usize].parent;
-        if parent == NIL {
+        if parent == NIL || self.nodes[parent as usize].parent == NIL {
             return false;
         }
-        let grandparent = self.nodes[parent as usize].parent;
-        if grandparent == NIL {
+        if !self.held_bounds[parent as usize].contains(fat) {
             return false;
         }
-        let g = &self.nodes[grandparent as usize];
-        let fits = g
-            .lane_of(parent)
-            .is_some_and(|lane| g.lane_box(lane).contains(fat));
-        if !fits {
-            return false;
-        }
-        let p = &mut self.nodes[parent as usize];
-        let Some(lane) = p.lane_of(leaf) else {
+        let Some(lane) = self.nodes[parent as usize].lane_of(leaf) else {
             return false;
         };
-        let grown = p.lane_box(lane).union(fat);
-        p.set_lane_box(lane, &grown);
+        let grown = self.held_bounds[leaf as usize].union(fat);
+        self.set_child_bound(parent, lane, &grown);
         true
     }
 

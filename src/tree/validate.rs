@@ -46,6 +46,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             "root {root} out of the pool"
         );
         ensure!(self.nodes[root as usize].parent == NIL, "root has a parent");
+        ensure!(
+            self.held_bounds[root as usize] == Aabb::EVERYWHERE,
+            "the root's copy of its bound is {:?}, not all space",
+            self.held_bounds[root as usize]
+        );
         let mut seen = vec![false; self.nodes.len()];
         let mut stack = vec![root];
         let mut entries = 0usize;
@@ -123,6 +128,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                         c.parent == index,
                         "node {child} has parent {} but hangs under {index}",
                         c.parent
+                    );
+                    ensure!(
+                        self.held_bounds[child as usize] == lane_box,
+                        "node {child}'s copy of its bound {:?} is not the {lane_box:?} node {index} holds",
+                        self.held_bounds[child as usize]
                     );
                     ensure!(
                         c.level != FREE_LEVEL && c.level + 1 == node.level,
