@@ -31,3 +31,23 @@ pub use nearest::Neighbor;
 pub use parallel::ParallelWorkspace;
 pub use ray::{RayHit, RayMode, RayResults};
 pub use workspace::QueryWorkspace;
+
+/// Orders the children a node just pushed onto a depth-first stack by
+/// their distance `D` (a ray's entry `t`, a point's squared distance),
+/// farthest first, so that the nearest is popped next. Children are few,
+/// so an insertion sort, in place and stable: equal distances keep the
+/// order they were pushed in.
+#[inline(always)]
+pub(crate) fn sort_far_to_near<D: PartialOrd + Copy>(pushed: &mut [(u32, D)]) {
+    // Each new child shifts the nearer ones already placed one slot
+    // towards the top.
+    for next in 1..pushed.len() {
+        let item = pushed[next];
+        let mut slot = next;
+        while slot > 0 && pushed[slot - 1].1 < item.1 {
+            pushed[slot] = pushed[slot - 1];
+            slot -= 1;
+        }
+        pushed[slot] = item;
+    }
+}

@@ -88,21 +88,6 @@ fn reach_cube(point: Vec3, limit_sq: f64) -> Aabb {
     sphere_reach(point, radius)
 }
 
-/// Orders a node's pushed children by distance, farthest first, so that
-/// the nearest is popped next. Children are few: an insertion sort, stable,
-/// so equal distances keep lane order.
-fn far_to_near(pushed: &mut [(u32, f64)]) {
-    for next in 1..pushed.len() {
-        let item = pushed[next];
-        let mut slot = next;
-        while slot > 0 && pushed[slot - 1].1 < item.1 {
-            pushed[slot] = pushed[slot - 1];
-            slot -= 1;
-        }
-        pushed[slot] = item;
-    }
-}
-
 /// Restores the max-heap order (by [`Neighbor::rank`]) after a push at `i`.
 fn sift_up<K: Ord>(heap: &mut [Neighbor<K>], mut i: usize) {
     while i > 0 {
@@ -244,7 +229,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                         stack.push((node.child[lane], d2));
                     }
                 }
-                far_to_near(&mut stack[base..]);
+                super::sort_far_to_near(&mut stack[base..]);
             }
         }
     }

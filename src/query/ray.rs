@@ -379,18 +379,7 @@ fn push_far_to_near<const W: usize>(
         hits &= hits - 1;
         stack.push((node.child[lane], lane_t[lane]));
     }
-    // Far first: each new child shifts the nearer ones already placed one
-    // slot towards the top.
-    let pushed = &mut stack[base..];
-    for next in 1..pushed.len() {
-        let item = pushed[next];
-        let mut slot = next;
-        while slot > 0 && pushed[slot - 1].1 < item.1 {
-            pushed[slot] = pushed[slot - 1];
-            slot -= 1;
-        }
-        pushed[slot] = item;
-    }
+    super::sort_far_to_near(&mut stack[base..]);
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
