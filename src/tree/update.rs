@@ -69,8 +69,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// only the handles' stamps (4 bytes each, in a dense array that stays in
     /// cache), and while the applying pass applies one move it asks for the
     /// record of the move sixteen places ahead and the lane bounds of the
-    /// leaf of the move eight places ahead, so their loads overlap (on the standard scene's 10,000 moves per frame, 25 to 33 %
-    /// less time than one `update` per move in this machine's runs).
+    /// leaf of the move eight places ahead, so their loads overlap (on the
+    /// standard scene's 10,000 moves per frame, 25 to 33 % less time than
+    /// one `update` per move in this machine's runs).
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree, SpatialError};
