@@ -8,7 +8,13 @@
 //! - `frame/moves_10k`: applying one frame's 10,000 moves to a persistent
 //!   index (the scene is advanced untimed before each timed frame);
 //!   `bevy_rtree` gathers them into one `update_batch`, as the plugin does,
-//!   and `bevy_rtree_one_by_one` calls `update` per move;
+//!   then runs the churn repair (`optimize`); `bevy_rtree_repair_untimed`
+//!   is the same with the repair run but not counted (the counterpart of
+//!   parry3d's update path, which repairs nothing), and
+//!   `bevy_rtree_one_by_one` calls `update` per move. parry3d runs
+//!   `insert_or_update_partially` per move and `refit`, with a margin of 0
+//!   or 0.1, and once more with `optimize_incremental` after each frame
+//!   (its own repair);
 //! - `query/boxes`: 1,000 box-overlap queries against a fresh and a churned
 //!   tree and the peers, all over the same boxes;
 //! - `split/insert_100k`, `split/moves_10k`, `split/boxes_churned`: the node
@@ -342,13 +348,26 @@ fn time_frames(
     iters: u64,
     mut apply: impl FnMut(&[u32], &[Aabb]),
 ) -> Duration {
+    time_frames_excluding(scene, iters, |moved, boxes| {
+        apply(moved, boxes);
+        Duration::ZERO
+    })
+}
+
+/// [`time_frames`] for an `apply` that returns how long a part of its work
+/// took that is not to be counted.
+fn time_frames_excluding(
+    scene: &mut TownScene,
+    iters: u64,
+    mut apply: impl FnMut(&[u32], &[Aabb]) -> Duration,
+) -> Duration {
     let mut total = Duration::ZERO;
     for _ in 0..iters {
         scene.advance_frame();
         let (moved, boxes) = (scene.moved(), scene.boxes());
         let start = Instant::now();
-        apply(moved, boxes);
-        total += start.elapsed();
+        let excluded = apply(moved, boxes);
+        total += start.elapsed().saturating_sub(excluded);
     }
     total
 }
@@ -359,6 +378,9 @@ struct BevyMoves {
     ids: Vec<ProxyId>,
     /// One `update_batch` per frame, or one `update` per move.
     batched: bool,
+    /// Whether the frame's churn repair (`optimize`) counts in the time; it
+    /// runs every frame either way, so the tree is the same.
+    repair_timed: bool,
     /// The frame's moves, for `update_batch` (kept to avoid reallocating).
     moves: Vec<(ProxyId, Aabb)>,
 }
@@ -375,14 +397,28 @@ impl BevyMoves {
             tree,
             ids,
             batched,
+            repair_timed: true,
             moves: Vec::new(),
         }
     }
 
+    /// A contender that times the moves alone, with the churn repair run
+    /// every frame but not counted: the counterpart of parry3d's update
+    /// path, which repairs nothing.
+    fn repair_untimed(mut self) -> Self {
+        self.repair_timed = false;
+        self
+    }
+
     fn frame(&mut self, iters: u64) -> Duration {
-        let (tree, ids, moves, batched) =
-            (&mut self.tree, &self.ids, &mut self.moves, self.batched);
-        time_frames(&mut self.scene, iters, |moved, boxes| {
+        let (tree, ids, moves, batched, repair_timed) = (
+            &mut self.tree,
+            &self.ids,
+            &mut self.moves,
+            self.batched,
+            self.repair_timed,
+        );
+        time_frames_excluding(&mut self.scene, iters, |moved, boxes| {
             if batched {
                 moves.clear();
                 moves.extend(moved.iter().map(|&i| (ids[i as usize], boxes[i as usize])));
@@ -392,7 +428,13 @@ impl BevyMoves {
                     tree.update(ids[i as usize], boxes[i as usize]).unwrap();
                 }
             }
+            let repair = Instant::now();
             black_box(tree.optimize(usize::MAX));
+            if repair_timed {
+                Duration::ZERO
+            } else {
+                repair.elapsed()
+            }
         })
     }
     fn check(&self, queries: &[Aabb]) {
@@ -467,6 +509,9 @@ struct ParryMoves {
     bvh: Bvh,
     workspace: BvhWorkspace,
     margin: f32,
+    /// Whether each frame ends with `optimize_incremental`, parry3d's
+    /// counterpart of bevy_rtree's churn repair.
+    optimize: bool,
 }
 
 impl ParryMoves {
@@ -476,7 +521,14 @@ impl ParryMoves {
             bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &parry_leaves(scene.boxes())),
             workspace: BvhWorkspace::default(),
             margin,
+            optimize: false,
         }
+    }
+
+    /// The same update path followed by `optimize_incremental` each frame.
+    fn optimized(mut self) -> Self {
+        self.optimize = true;
+        self
     }
 
     fn apply(bvh: &mut Bvh, ws: &mut BvhWorkspace, margin: f32, moved: &[u32], boxes: &[Aabb]) {
@@ -487,9 +539,17 @@ impl ParryMoves {
     }
 
     fn frame(&mut self, iters: u64) -> Duration {
-        let (bvh, ws, margin) = (&mut self.bvh, &mut self.workspace, self.margin);
+        let (bvh, ws, margin, optimize) = (
+            &mut self.bvh,
+            &mut self.workspace,
+            self.margin,
+            self.optimize,
+        );
         time_frames(&mut self.scene, iters, |moved, boxes| {
-            Self::apply(bvh, ws, margin, moved, boxes)
+            Self::apply(bvh, ws, margin, moved, boxes);
+            if optimize {
+                bvh.optimize_incremental(ws);
+            }
         })
     }
 
@@ -542,10 +602,12 @@ fn bench_moves(c: &mut Criterion) {
     let checks = query_boxes(MOVE_CHECK_QUERIES, SEED ^ 0x3073);
 
     let mut bevy = BevyMoves::new(&scene, true);
+    let mut bevy_moves_alone = BevyMoves::new(&scene, true).repair_untimed();
     let mut bevy_single = BevyMoves::new(&scene, false);
     let mut rstar = RstarMoves::new(&scene);
     let mut parry0 = ParryMoves::new(&scene, 0.0);
     let mut parry01 = ParryMoves::new(&scene, 0.1);
+    let mut parry0_optimized = ParryMoves::new(&scene, 0.0).optimized();
     let mut flat = FlatMoves {
         scene: scene.clone(),
         flat: scene.boxes().to_vec(),
@@ -553,16 +615,20 @@ fn bench_moves(c: &mut Criterion) {
 
     // A few frames, then check every contender against the oracle.
     bevy.frame(CHECK_FRAMES as u64);
+    bevy_moves_alone.frame(CHECK_FRAMES as u64);
     bevy_single.frame(CHECK_FRAMES as u64);
     rstar.frame(CHECK_FRAMES as u64);
     parry0.frame(CHECK_FRAMES as u64);
     parry01.frame(CHECK_FRAMES as u64);
+    parry0_optimized.frame(CHECK_FRAMES as u64);
     flat.frame(CHECK_FRAMES as u64);
     bevy.check(&checks);
+    bevy_moves_alone.check(&checks);
     bevy_single.check(&checks);
     rstar.check(&checks);
     parry0.check(&checks);
     parry01.check(&checks);
+    parry0_optimized.check(&checks);
     flat.check();
     eprintln!("moves check ok after {CHECK_FRAMES} frames");
     bevy.tree.take_maintenance_stats();
@@ -570,6 +636,9 @@ fn bench_moves(c: &mut Criterion) {
 
     let mut group = c.benchmark_group("frame/moves_10k");
     group.bench_function("bevy_rtree", |b| b.iter_custom(|iters| bevy.frame(iters)));
+    group.bench_function("bevy_rtree_repair_untimed", |b| {
+        b.iter_custom(|iters| bevy_moves_alone.frame(iters))
+    });
     group.bench_function("bevy_rtree_one_by_one", |b| {
         b.iter_custom(|iters| bevy_single.frame(iters))
     });
@@ -580,15 +649,20 @@ fn bench_moves(c: &mut Criterion) {
     group.bench_function("parry3d_margin0.1", |b| {
         b.iter_custom(|iters| parry01.frame(iters))
     });
+    group.bench_function("parry3d_margin0_optimize_incremental", |b| {
+        b.iter_custom(|iters| parry0_optimized.frame(iters))
+    });
     group.bench_function("flat_array", |b| b.iter_custom(|iters| flat.frame(iters)));
     group.finish();
 
     // The indexes went through many more frames while timed: check again.
     bevy.check(&checks);
+    bevy_moves_alone.check(&checks);
     bevy_single.check(&checks);
     rstar.check(&checks);
     parry0.check(&checks);
     parry01.check(&checks);
+    parry0_optimized.check(&checks);
     flat.check();
     let frames = (bevy.scene.frame() - frames_before).max(1);
     let stats = bevy.tree.take_maintenance_stats();
