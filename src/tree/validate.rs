@@ -37,8 +37,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// root has at least two children; all leaves are at the same depth;
     /// unused lanes are inverted; the number of leaf entries equals `len()`
     /// and the number of live handles, and each handle points at the lane
-    /// that holds it; every stored exact box is valid; free nodes plus live
-    /// nodes make up the pool.
+    /// that holds it; every stored exact box is valid; each node's copy of
+    /// the bound its parent holds for it matches that lane (all space for
+    /// the root); free nodes plus live nodes make up the pool.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         let root = self.root;
         ensure!(
@@ -194,5 +195,44 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.nodes.len()
         );
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+
+    /// A tree of 500 unit boxes on a line: three levels at width 16.
+    fn tree() -> RTree<u32> {
+        let mut tree = RTree::new();
+        for i in 0..500u32 {
+            let p = Vec3::new(i as f32, 0.0, 0.0);
+            tree.insert(i, Aabb::new(p, p + Vec3::ONE).unwrap())
+                .unwrap();
+        }
+        tree
+    }
+
+    #[test]
+    fn a_stale_copy_of_a_held_bound_is_reported() {
+        let mut tree = tree();
+        tree.validate().unwrap();
+        let root = tree.nodes[tree.root as usize].clone();
+        assert!(!root.is_leaf());
+        let child = root.child[0] as usize;
+        tree.held_bounds[child].max.x += 1.0;
+        let broken = tree.validate().unwrap_err();
+        assert!(broken.0.contains("copy of its bound"), "{broken}");
+    }
+
+    #[test]
+    fn a_root_whose_copy_is_not_all_space_is_reported() {
+        let mut tree = tree();
+        let root = tree.root as usize;
+        tree.held_bounds[root] = Aabb::INVERTED;
+        let broken = tree.validate().unwrap_err();
+        assert!(broken.0.contains("root's copy"), "{broken}");
     }
 }
