@@ -198,7 +198,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             let node = self.node(index);
             ws.stats.nodes_visited += 1;
-            let mut near = node.overlap_mask(&reach) & node.used_lanes();
+            let mut near = node.overlap_mask_among(&reach, node.used_lanes());
             if node.is_leaf() {
                 ws.stats.entries_tested += node.len() as u64;
                 while near != 0 {

@@ -70,7 +70,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             ws.stats.nodes_visited += 1;
             // The cube around the sphere dismisses most lanes four at a
             // time; only the lanes it keeps take the exact test.
-            let mut near = node.overlap_mask(&reach) & node.used_lanes();
+            let mut near = node.overlap_mask_among(&reach, node.used_lanes());
             if node.is_leaf() {
                 ws.stats.entries_tested += node.len() as u64;
             }
