@@ -66,7 +66,9 @@ const RAY_RUNS_PER_TASK: usize = 8;
 /// The scope parks the thread, and a parked thread took about 40 µs to wake
 /// on the 2-core machine the benches ran on: longer than most last items
 /// take (a run of rays: about 20 µs). 1,000 incoherent rays on 2 threads
-/// went from 1.47 × to 1.8 × the single-threaded speed with the spin.
+/// went from 1.47–1.51 × to 1.66–1.97 × the single-threaded speed with the
+/// spin in a probe (medians of single calls), from 1.50–1.55 × to
+/// 1.61–1.79 × in the bench; the joins did not move.
 const SPIN_WAIT: Duration = Duration::from_micros(100);
 
 /// Scratch memory of the parallel queries: one [`QueryWorkspace`] and answer
@@ -163,11 +165,11 @@ impl<K> ParallelWorkspace<K> {
     /// Splitting pays only when the batch takes several times longer than a
     /// pool thread takes to start, and a thread that slept between frames
     /// can be slow to start. On the 2-core virtual machine the benches ran
-    /// on, 1,000 incoherent rays gained 1.48 × back to back, but lost
-    /// (0.88 ×) when each call came after 2 ms of idle, while 4,000 rays
-    /// gained 1.73 × back to back. If your pool idles between frames, raise
-    /// this so that batches of a few thousand rays stay on the calling
-    /// thread.
+    /// on, 1,000 incoherent rays gained 1.51–1.65 × back to back, but lost
+    /// (0.80–0.82 ×) when each call came after 2 ms of idle, while 4,000
+    /// rays gained 1.71–1.73 × back to back. If your pool idles between
+    /// frames, raise this so that batches of a few thousand rays stay on
+    /// the calling thread.
     pub fn with_min_rays_per_task(mut self, rays: usize) -> Self {
         self.min_rays_per_task = rays.max(1);
         self
