@@ -121,6 +121,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             stats,
             visit,
             |ray, limit, node| avx_ray_lanes(ray, limit, node),
+            super::ray::push_far_to_near::<W>,
         )
     }
 }

@@ -16,8 +16,9 @@
 //! made only after [`walk_is_avx512`] has found AVX-512.
 
 use std::arch::x86_64::{
-    _CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_extractf32x4_ps, _mm512_max_ps, _mm512_min_ps,
-    _mm512_mul_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_sub_ps,
+    _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_extractf32x4_ps,
+    _mm512_mask_cmp_ps_mask, _mm512_max_ps, _mm512_min_ps, _mm512_mul_ps, _mm512_set1_ps,
+    _mm512_setzero_ps, _mm512_sub_ps,
 };
 use std::ops::ControlFlow;
 
@@ -31,11 +32,12 @@ use crate::tree::{QueryStats, RTree};
 
 /// Whether the single-ray walk of `ray` through nodes `W` wide runs on the
 /// AVX-512 lane test: the processor has AVX-512 (its foundation
-/// instructions), the width is a multiple of sixteen and the ray has no
-/// zero direction component.
+/// instructions) and `popcnt` (every processor with AVX-512 has it), the
+/// width is a multiple of sixteen and the ray has no zero direction
+/// component.
 #[inline]
 pub(super) fn walk_is_avx512<const W: usize>(ray: &RayTest) -> bool {
-    !ray.has_flat_axis && avx512_tests_nodes::<W>()
+    !ray.has_flat_axis && avx512_tests_nodes::<W>() && std::is_x86_feature_detected!("popcnt")
 }
 
 /// [`super::ray::ray_lanes`] for a ray with no zero direction component,
@@ -80,11 +82,70 @@ pub(super) fn avx512_ray_lanes<const W: usize>(
     (mask, entry)
 }
 
+/// [`super::ray::push_far_to_near`] without the insertion sort's branches
+/// (see `RayWalkScratch` in `ray.rs` for when the walk uses it): the same
+/// children in the same order. One child is pushed as it is and two are
+/// swapped by a select; from three on, each child goes straight to its
+/// slot, counted sixteen lanes at a time as the hit children that go below
+/// it: those that are farther, and those as far that were pushed before
+/// it (the sort is stable).
+#[target_feature(enable = "avx512f,popcnt")]
+#[inline]
+pub(super) fn push_far_to_near_ranked<const W: usize>(
+    stack: &mut Vec<(u32, f32)>,
+    node: &Node<W>,
+    mask: u32,
+    lane_t: &[f32; W],
+) {
+    let count = mask.count_ones() as usize;
+    if count <= 1 {
+        if mask != 0 {
+            let lane = mask.trailing_zeros() as usize;
+            stack.push((node.child[lane], lane_t[lane]));
+        }
+        return;
+    }
+    if count == 2 {
+        let first = mask.trailing_zeros() as usize;
+        let second = (mask & (mask - 1)).trailing_zeros() as usize;
+        let pushed_first = (node.child[first], lane_t[first]);
+        let pushed_second = (node.child[second], lane_t[second]);
+        // The farther goes below; on a tie, the one pushed first.
+        let swap = pushed_first.1 < pushed_second.1;
+        stack.push(if swap { pushed_second } else { pushed_first });
+        stack.push(if swap { pushed_first } else { pushed_second });
+        return;
+    }
+    let base = stack.len();
+    stack.resize(base + count, (0, 0.0));
+    let slots = &mut stack[base..];
+    let mut hits = mask;
+    while hits != 0 {
+        let lane = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        let t = _mm512_set1_ps(lane_t[lane]);
+        let pushed_before = (1u32 << lane) - 1;
+        let mut below = 0;
+        for first in (0..W).step_by(LANES_PER_AVX512_TEST) {
+            let hit = (mask >> first) as u16;
+            let row = sixteen_lanes(lane_t, first);
+            let farther = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(hit, row, t);
+            let before = hit & (pushed_before >> first) as u16;
+            let tied = _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(before, row, t);
+            below += (farther | tied).count_ones() as usize;
+        }
+        slots[below] = (node.child[lane], lane_t[lane]);
+    }
+}
+
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// The walk compiled with AVX-512 enabled, on the AVX-512 lane test.
     /// Call it only where [`walk_is_avx512`] is true (`RTree::walk_one`
     /// does).
-    #[target_feature(enable = "avx512f")]
+    /// With `ranked`, a node's hit children are placed by
+    /// [`push_far_to_near_ranked`], otherwise by the insertion sort.
+    #[target_feature(enable = "avx512f,popcnt")]
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn walk_one_avx512<F>(
         &self,
         start: u32,
@@ -93,19 +154,35 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         stack: &mut Vec<(u32, f32)>,
         stats: &mut QueryStats,
         visit: F,
+        ranked: bool,
     ) -> f32
     where
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
     {
-        self.walk_with(
-            start,
-            test,
-            limit,
-            stack,
-            stats,
-            visit,
-            |ray, limit, node| avx512_ray_lanes(ray, limit, node),
-        )
+        let lanes = |ray: &RayTest, limit, node: &Node<W>| avx512_ray_lanes(ray, limit, node);
+        if ranked {
+            self.walk_with(
+                start,
+                test,
+                limit,
+                stack,
+                stats,
+                visit,
+                lanes,
+                |stack, node, mask, t| push_far_to_near_ranked(stack, node, mask, t),
+            )
+        } else {
+            self.walk_with(
+                start,
+                test,
+                limit,
+                stack,
+                stats,
+                visit,
+                lanes,
+                super::ray::push_far_to_near::<W>,
+            )
+        }
     }
 }
 
@@ -129,6 +206,68 @@ mod tests {
             assert!(checked > 5_000, "only {checked} rays took the AVX-512 test");
         } else {
             assert_eq!(checked, 0, "no AVX-512, yet the AVX-512 test ran");
+        }
+    }
+
+    /// Pushes the children of `mask` with both orderings, onto a stack that
+    /// already holds an item, for `cases` random masks and entry `t`s drawn
+    /// from few values (so that ties are common); returns the cases run.
+    fn ranked_push_agrees_with_the_insertion_sort<const W: usize>(
+        seed: u64,
+        cases: usize,
+    ) -> usize {
+        if !(avx512_tests_nodes::<W>() && std::is_x86_feature_detected!("popcnt")) {
+            return 0;
+        }
+        let mut node = Node::<W>::empty(1, crate::tree::node::NIL);
+        for (lane, child) in node.child.iter_mut().enumerate() {
+            *child = 100 + lane as u32;
+        }
+        node.len = W as u16;
+        let mut state = seed;
+        let mut next = move || {
+            // xorshift64: enough to spread masks and ties.
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let values = [0.0f32, 0.5, 1.0, 1.0 + f32::EPSILON, 7.25, 1e30];
+        for case in 0..cases {
+            // Every third mask keeps about one lane in eight, so that
+            // one, two and three children are common too.
+            let sparse = if case % 3 == 0 {
+                next() & next() & next()
+            } else {
+                u64::MAX
+            };
+            let mask = (next() & sparse) as u32 & node.used_lanes();
+            let lane_t: [f32; W] =
+                std::array::from_fn(|_| values[(next() % values.len() as u64) as usize]);
+            let mut sorted = vec![(7u32, 9.0f32)];
+            crate::query::ray::push_far_to_near(&mut sorted, &node, mask, &lane_t);
+            let mut ranked = vec![(7u32, 9.0f32)];
+            // SAFETY: checked above that this processor has AVX-512 and popcnt.
+            #[allow(unsafe_code)]
+            unsafe {
+                push_far_to_near_ranked(&mut ranked, &node, mask, &lane_t)
+            };
+            let bits =
+                |v: &[(u32, f32)]| v.iter().map(|&(c, t)| (c, t.to_bits())).collect::<Vec<_>>();
+            assert_eq!(bits(&ranked), bits(&sorted), "mask {mask:#x}, t {lane_t:?}");
+        }
+        cases
+    }
+
+    #[test]
+    fn ranked_push_orders_children_as_the_insertion_sort_does() {
+        let checked =
+            ranked_push_agrees_with_the_insertion_sort::<16>(0x9E37_79B9_7F4A_7C15, 20_000)
+                + ranked_push_agrees_with_the_insertion_sort::<32>(0xD1B5_4A32_D192_ED03, 5_000);
+        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("popcnt") {
+            assert_eq!(checked, 25_000);
+        } else {
+            assert_eq!(checked, 0, "no AVX-512, yet the ranked push ran");
         }
     }
 
