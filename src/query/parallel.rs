@@ -49,7 +49,7 @@ use crate::tree::{QueryStats, RTree};
 const ITEMS_PER_TASK: usize = 16;
 
 /// Runs of a ray batch per task, claimed one at a time. A pool thread starts
-/// on its first run 40 to 100 µs after the call; with several runs each, the
+/// on its first run 34 to 100 µs after the call; with several runs each, the
 /// calling thread casts more of them meanwhile instead of waiting for the
 /// pool thread to finish a fixed half. 1,000 incoherent rays on 2 threads,
 /// against about 0.65 ms on one: 0.48 ms with one run per task, 0.42 ms

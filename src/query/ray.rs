@@ -399,6 +399,8 @@ pub(super) fn push_far_to_near<const W: usize>(
 /// 0.331–0.343 → 0.304–0.325 ms with the twin for every ray, but rays from
 /// the clear eye 0.166–0.174 → 0.178–0.186 ms, hence the choice by origin.
 #[derive(Clone, Debug, Default)]
+// Only x86-64 has a walk that reads the origin.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(crate) struct RayWalkScratch {
     pub stack: Vec<(u32, f32)>,
     previous_origin: [f32; 3],
@@ -408,6 +410,7 @@ impl RayWalkScratch {
     /// Whether a ray from `origin` starts where the last walked ray did;
     /// notes `origin` as the last.
     #[inline]
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     fn follows_previous(&mut self, origin: [f32; 3]) -> bool {
         let follows = self.previous_origin == origin;
         self.previous_origin = origin;
@@ -527,10 +530,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
     {
-        let follows = walk.follows_previous(test.origin);
-        let stack = &mut walk.stack;
         #[cfg(target_arch = "x86_64")]
         {
+            // Only the AVX-512 walk has the ranked twin to choose.
+            let follows = walk.follows_previous(test.origin);
+            let stack = &mut walk.stack;
             if super::ray_avx512::walk_is_avx512::<W>(test) {
                 // SAFETY: `walk_is_avx512` is true only once the standard
                 // library's run-time check has found AVX-512 (and
@@ -547,12 +551,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 return unsafe { self.walk_one_avx(start, test, limit, stack, stats, visit) };
             }
         }
-        let _ = follows;
         self.walk_with(
             start,
             test,
             limit,
-            stack,
+            &mut walk.stack,
             stats,
             visit,
             ray_lanes::<W>,

@@ -1,19 +1,26 @@
-//! The ray lane test sixteen lanes at a time, on processors with AVX-512.
+//! The ray lane test sixteen lanes at a time, on processors with AVX-512,
+//! and the placing of a node's hit children on the walk's stack by rank.
 //!
 //! The AVX walk (`ray_avx.rs`) tests a node of the default width in two
 //! groups of eight lanes; with AVX-512 one group covers all sixteen. The
-//! single-ray walk is compiled a third time with AVX-512 enabled, and
-//! `RTree::walk_one` (`ray.rs`) chooses it where [`walk_is_avx512`] allows,
-//! before trying AVX. Measured on the standard scene: see the CHANGELOG.
+//! single-ray walk is compiled with AVX-512 enabled twice, once with the
+//! insertion sort that orders a node's hit children and once with
+//! [`push_far_to_near_ranked`], which places them in the same order without
+//! a branch per comparison; `RTree::walk_one` (`ray.rs`) chooses this walk
+//! where [`walk_is_avx512`] allows, before trying AVX, and the copy by
+//! whether the ray starts where the last walked ray started (see
+//! `RayWalkScratch`). Measured on the standard scene: see the CHANGELOG.
 //!
-//! The test performs the same operations in the same order as the four-
-//! and eight-lane tests, so it agrees with the scalar predicate bit for bit
-//! (a unit test holds it to that). It covers rays with no zero direction
-//! component; a ray that runs flat along an axis keeps the four-lane walk.
+//! The lane test performs the same operations in the same order as the
+//! four- and eight-lane tests, so it agrees with the scalar predicate bit
+//! for bit (a unit test holds it to that), and a second test holds the
+//! ranked placing to the insertion sort's order. The walk covers rays with
+//! no zero direction component; a ray that runs flat along an axis keeps
+//! the four-lane walk.
 //!
 //! Calling a function compiled for AVX-512 is `unsafe` (see
 //! `join_avx512.rs`); the crate's call of this walk is in `RTree::walk_one`,
-//! made only after [`walk_is_avx512`] has found AVX-512.
+//! made only after [`walk_is_avx512`] has found AVX-512 and `popcnt`.
 
 use std::arch::x86_64::{
     _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_extractf32x4_ps,
@@ -123,6 +130,10 @@ pub(super) fn push_far_to_near_ranked<const W: usize>(
     while hits != 0 {
         let lane = hits.trailing_zeros() as usize;
         hits &= hits - 1;
+        // A NaN would compare neither farther nor as far, and two children
+        // would share a slot; the lane tests never report one as a hit
+        // (their entry `t` starts at 0 and `max` keeps it on a NaN).
+        debug_assert!(!lane_t[lane].is_nan(), "a hit lane with a NaN entry t");
         let t = _mm512_set1_ps(lane_t[lane]);
         let pushed_before = (1u32 << lane) - 1;
         let mut below = 0;
@@ -232,7 +243,21 @@ mod tests {
             state ^= state << 17;
             state
         };
-        let values = [0.0f32, 0.5, 1.0, 1.0 + f32::EPSILON, 7.25, 1e30];
+        // Signed zeros and infinity too: an entry `t` can be either zero,
+        // and infinite on a long ray through huge coordinates.
+        let values = [
+            0.0f32,
+            -0.0,
+            0.5,
+            1.0,
+            1.0 + f32::EPSILON,
+            7.25,
+            1e30,
+            f32::INFINITY,
+        ];
+        // Cases seen with 0, 1, 2 and 3 or more children: each path of the
+        // ranked push must have run.
+        let mut seen = [0usize; 4];
         for case in 0..cases {
             // Every third mask keeps about one lane in eight, so that
             // one, two and three children are common too.
@@ -242,6 +267,7 @@ mod tests {
                 u64::MAX
             };
             let mask = (next() & sparse) as u32 & node.used_lanes();
+            seen[(mask.count_ones() as usize).min(3)] += 1;
             let lane_t: [f32; W] =
                 std::array::from_fn(|_| values[(next() % values.len() as u64) as usize]);
             let mut sorted = vec![(7u32, 9.0f32)];
@@ -256,6 +282,7 @@ mod tests {
                 |v: &[(u32, f32)]| v.iter().map(|&(c, t)| (c, t.to_bits())).collect::<Vec<_>>();
             assert_eq!(bits(&ranked), bits(&sorted), "mask {mask:#x}, t {lane_t:?}");
         }
+        assert!(seen.iter().all(|&n| n > 0), "child counts seen: {seen:?}");
         cases
     }
 
