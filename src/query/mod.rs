@@ -20,6 +20,7 @@ mod ray;
 mod ray_avx;
 #[cfg(target_arch = "x86_64")]
 mod ray_avx512;
+mod ray_batch;
 mod ray_origin;
 mod sphere;
 mod workspace;
@@ -29,7 +30,8 @@ pub use join::JoinMode;
 pub use nearest::Neighbor;
 #[cfg(feature = "parallel")]
 pub use parallel::ParallelWorkspace;
-pub use ray::{RayHit, RayMode, RayResults};
+pub use ray::{RayHit, RayMode};
+pub use ray_batch::RayResults;
 pub use workspace::QueryWorkspace;
 
 /// Orders the children a node just pushed onto a depth-first stack by

@@ -41,7 +41,7 @@ pub struct QueryWorkspace {
     /// distance from the query point to its bound.
     pub(crate) nearest: Vec<(u32, f64)>,
     /// Per-ray state of batched raycasts.
-    pub(crate) rays: super::ray::RayBatchScratch,
+    pub(crate) rays: super::ray_batch::RayBatchScratch,
     pub(crate) stats: QueryStats,
 }
 
