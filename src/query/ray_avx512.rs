@@ -171,6 +171,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
     {
         let lanes = |ray: &RayTest, limit, node: &Node<W>| avx512_ray_lanes(ray, limit, node);
+        // Two copies of the walk, each with its ordering compiled in: one
+        // walk choosing the ordering at every node measured 2–3 % slower in
+        // a probe (within its noise, but on both kinds of rays).
         if ranked {
             self.walk_with(
                 start,
