@@ -326,11 +326,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         stack.clear();
         stack.push((start, 0.0));
         while let Some(index) = pop_within(stack, limit) {
-            let step = self.walk_node(
-                index, test, &mut limit, stack, stats, &mut visit, &lanes, &push,
-            );
-            if step.is_break() {
-                return -1.0;
+            match self.walk_node(index, test, limit, stack, stats, &mut visit, &lanes, &push) {
+                ControlFlow::Continue(shrunk) => limit = shrunk,
+                ControlFlow::Break(()) => return -1.0,
             }
         }
         limit
@@ -387,45 +385,49 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 return [limit_a, limit_b];
             }
             if let Some(index) = a {
-                let (visit, limit) = (&mut visits.0, &mut limit_a);
-                if self
-                    .walk_node(index, test_a, limit, stack_a, stats, visit, &lanes, &push)
-                    .is_break()
+                let visit = &mut visits.0;
+                limit_a = match self
+                    .walk_node(index, test_a, limit_a, stack_a, stats, visit, &lanes, &push)
                 {
-                    *limit = -1.0;
-                    stack_a.clear();
-                }
+                    ControlFlow::Continue(shrunk) => shrunk,
+                    ControlFlow::Break(()) => {
+                        stack_a.clear();
+                        -1.0
+                    }
+                };
             }
             if let Some(index) = b {
-                let (visit, limit) = (&mut visits.1, &mut limit_b);
-                if self
-                    .walk_node(index, test_b, limit, stack_b, stats, visit, &lanes, &push)
-                    .is_break()
+                let visit = &mut visits.1;
+                limit_b = match self
+                    .walk_node(index, test_b, limit_b, stack_b, stats, visit, &lanes, &push)
                 {
-                    *limit = -1.0;
-                    stack_b.clear();
-                }
+                    ControlFlow::Continue(shrunk) => shrunk,
+                    ControlFlow::Break(()) => {
+                        stack_b.clear();
+                        -1.0
+                    }
+                };
             }
         }
     }
 
-    /// One node of a ray's walk: a leaf reports its hits within `limit` to
-    /// `visit`, shrinking `limit` to what `visit` returns (`Break` when
-    /// `visit` breaks); an internal node pushes its hit children far to
-    /// near.
+    /// One node of a ray's walk, returning the ray's limit after it: a leaf
+    /// reports its hits within `limit` to `visit`, the limit shrinking to
+    /// what `visit` returns (`Break` when `visit` breaks); an internal node
+    /// pushes its hit children far to near.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn walk_node<F, L, P>(
         &self,
         index: u32,
         test: &RayTest,
-        limit: &mut f32,
+        mut limit: f32,
         stack: &mut Vec<(u32, f32)>,
         stats: &mut crate::tree::QueryStats,
         visit: &mut F,
         lanes: &L,
         push: &P,
-    ) -> ControlFlow<()>
+    ) -> ControlFlow<(), f32>
     where
         F: FnMut(u32, f32) -> ControlFlow<(), f32>,
         L: Fn(&RayTest, f32, &Node<W>) -> (u32, [f32; W]),
@@ -433,22 +435,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     {
         let node = self.node(index);
         stats.nodes_visited += 1;
-        let (mask, lane_t) = lanes(test, *limit, node);
+        let (mask, lane_t) = lanes(test, limit, node);
         if node.is_leaf() {
             stats.entries_tested += node.len() as u64;
             let mut hits = mask;
             while hits != 0 {
                 let lane = hits.trailing_zeros() as usize;
                 hits &= hits - 1;
-                if lane_t[lane] > *limit {
+                if lane_t[lane] > limit {
                     continue;
                 }
-                *limit = limit.min(visit(node.child[lane], lane_t[lane])?);
+                limit = limit.min(visit(node.child[lane], lane_t[lane])?);
             }
         } else {
             push(stack, node, mask, &lane_t);
         }
-        ControlFlow::Continue(())
+        ControlFlow::Continue(limit)
     }
 
     /// The single-ray walk: on the AVX-512 lane test where
