@@ -25,7 +25,7 @@ pub enum JoinMode {
     /// Pair iff the gap on every axis is `<= d` (the box grown by `d`
     /// overlaps): a superset of the Euclidean pairs (it adds diagonal
     /// neighbours up to `d·√3` apart). It skips the `f64` distance, but on
-    /// the standard scene the join took from 3 % more to 13 % less time
+    /// the standard scene the join took from 4 % more to 13 % less time
     /// than in the Euclidean mode over recent runs (see
     /// docs/accuracy_cost.md), so prefer it only where the grown-box test is
     /// what you want.

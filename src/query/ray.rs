@@ -345,7 +345,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// two walks branch alike, as rays from one point do, that pays:
     /// 1,000 rays from the clear eye, batched, 0.177–0.188 → 0.150–0.158
     /// ms in a probe (eight batches in turn, alternating builds), 0.200–0.233
-    /// → 0.185–0.191 ms in alternating runs of the queries bench. Rays from
+    /// → 0.185–0.191 ms in alternating runs of the queries bench; from the
+    /// standard eye of the accuracy report's scene (seed 2024) after 600
+    /// frames, 0.278–0.283 → 0.250–0.255 ms in the probe. Rays from
     /// scattered origins branch at random, each misprediction discards the
     /// other ray's work too, and they lost (0.33–0.35 → 0.37–0.39 ms in
     /// the probe), so only rays from one point are paired (`ray_batch.rs`).

@@ -221,8 +221,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Rays with a direction component beyond unit length still walk,
     /// limited to `t = 0`, to meet ties outside the origin's boxes. Where
     /// AVX-512 runs the walk, rays from one point that do walk go two at a
-    /// time in lock step (first and any hit), 10–15 % faster for a
-    /// camera's grid of rays than one after the other.
+    /// time in lock step (first and any hit): a camera's 1,000 rays took
+    /// 10–17 % less time so in the benches than one after the other.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray, RayMode, RayResults, SpatialError};
