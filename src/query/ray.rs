@@ -388,27 +388,41 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             if let Some(index) = a {
                 let visit = &mut visits.0;
-                limit_a = match self
-                    .walk_node(index, test_a, limit_a, stack_a, stats, visit, &lanes, &push)
-                {
-                    ControlFlow::Continue(shrunk) => shrunk,
-                    ControlFlow::Break(()) => {
-                        stack_a.clear();
-                        -1.0
-                    }
-                };
+                limit_a = self.turn(index, test_a, limit_a, stack_a, stats, visit, &lanes, &push);
             }
             if let Some(index) = b {
                 let visit = &mut visits.1;
-                limit_b = match self
-                    .walk_node(index, test_b, limit_b, stack_b, stats, visit, &lanes, &push)
-                {
-                    ControlFlow::Continue(shrunk) => shrunk,
-                    ControlFlow::Break(()) => {
-                        stack_b.clear();
-                        -1.0
-                    }
-                };
+                limit_b = self.turn(index, test_b, limit_b, stack_b, stats, visit, &lanes, &push);
+            }
+        }
+    }
+
+    /// One ray's turn in lock step: [`RTree::walk_node`] on its next node,
+    /// returning its limit after it, or `-1` with its stack emptied once
+    /// `visit` breaks (the ray is done, as [`RTree::walk_with`] returns).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn turn<F, L, P>(
+        &self,
+        index: u32,
+        test: &RayTest,
+        limit: f32,
+        stack: &mut Vec<(u32, f32)>,
+        stats: &mut crate::tree::QueryStats,
+        visit: &mut F,
+        lanes: &L,
+        push: &P,
+    ) -> f32
+    where
+        F: FnMut(u32, f32) -> ControlFlow<(), f32>,
+        L: Fn(&RayTest, f32, &Node<W>) -> (u32, [f32; W]),
+        P: Fn(&mut Vec<(u32, f32)>, &Node<W>, u32, &[f32; W]),
+    {
+        match self.walk_node(index, test, limit, stack, stats, visit, lanes, push) {
+            ControlFlow::Continue(shrunk) => shrunk,
+            ControlFlow::Break(()) => {
+                stack.clear();
+                -1.0
             }
         }
     }
