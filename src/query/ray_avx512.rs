@@ -198,9 +198,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             )
         }
     }
-}
 
-impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Two rays' walks in lock step ([`RTree::walk_pair_with`]) compiled
     /// with AVX-512 enabled, on the AVX-512 lane test, their children
     /// ordered by the insertion sort (the pair's rays start at one point,

@@ -531,6 +531,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 }
             }
         }
+        // Not reached where `may_walk_paired` allowed the pair (two
+        // distinct rays, first or any hit, x86-64); kept so that the
+        // function answers every call.
         for r in [a, b] {
             self.single_from(start, r, mode, ws);
         }
