@@ -45,7 +45,7 @@ impl JoinMode {
 
 /// A join's distance test, checked once per call: `reach` grows boxes
 /// during the traversal, `exact` (the distance widened to `f64`) decides
-/// entry pairs by `mode`, unless `masks_decide`.
+/// entry pairs by `mode`, except where [`JoinTest::masks_decide`].
 ///
 /// At distance 0 both modes of S8 accept exactly the pairs of closed boxes
 /// that overlap: every axis gap must be 0, and the `f64` gap of two `f32`
@@ -53,15 +53,13 @@ impl JoinMode {
 /// difference never rounds to zero, and its square never underflows in
 /// `f64`). The lane masks compare the `f32` coordinates themselves with a
 /// reach of 0, so the pairs they keep are the answer and the `f64` test is
-/// skipped (`masks_decide`): self join of the standard scene 2.77–2.86 →
+/// skipped: self join of the standard scene 2.77–2.86 →
 /// 2.68–2.71 ms in a probe, alternating builds, the same pairs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct JoinTest {
     reach: f32,
     exact: f64,
     mode: JoinMode,
-    /// Whether the lane masks alone decide entry pairs (distance 0).
-    masks_decide: bool,
 }
 
 impl JoinTest {
@@ -72,8 +70,14 @@ impl JoinTest {
             exact: check_distance(distance)?,
             reach: reach_of(distance),
             mode,
-            masks_decide: distance == 0.0,
         })
+    }
+
+    /// Whether the lane masks alone decide entry pairs: at distance 0,
+    /// the one distance whose reach is 0 (see [`reach_of`]).
+    #[inline]
+    fn masks_decide(&self) -> bool {
+        self.reach == 0.0
     }
 
     /// The pair predicate of SEMANTICS S8.
@@ -360,7 +364,7 @@ fn lane_pairs<const W: usize, const LEAVES: bool>(
             // Counted here rather than with one `count_ones` of the mask:
             // see `lane_count`.
             ws.stats.entries_tested += 1;
-            if test.masks_decide || test.accepts(&lane_box, &inner.lane_box(n)) {
+            if test.masks_decide() || test.accepts(&lane_box, &inner.lane_box(n)) {
                 let (i, j) = a_b(o as u32, n as u32);
                 emit(i as usize, j as usize)?;
             }

@@ -97,13 +97,13 @@ pub(super) fn avx512_ray_lanes<const W: usize>(
 /// it: those that are farther, and those as far that were pushed before
 /// it (the sort is stable).
 ///
-/// Not compiled with AVX-512 enabled itself, unlike the lane test: a
-/// function that is cannot be forced inline (`#[inline(always)]` is refused
-/// with `#[target_feature]`), and the compiler kept this one out of line,
-/// a call per internal node that also spilled the walk's vector registers.
-/// Inlined into the AVX-512 walk, which is compiled with the features its
-/// intrinsics need: 1,000 incoherent rays 0.316–0.330 → 0.307–0.309 ms in
-/// a probe (eight batches in turn, alternating builds).
+/// Unlike the lane test, this function is not compiled with AVX-512
+/// enabled: `#[inline(always)]` is refused with `#[target_feature]`, and
+/// the compiler kept it out of line, a call per internal node that also
+/// spilled the walk's vector registers. Forced inline into the AVX-512
+/// walk, whose features its intrinsics then use: 1,000 incoherent rays
+/// 0.322–0.330 → 0.313–0.320 ms in a probe (eight batches in turn,
+/// alternating builds).
 ///
 /// # Safety
 ///
