@@ -142,11 +142,11 @@
 //!
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene at width 16
-//! (`cargo bench --bench tree -- split/`, the README's latest run):
-//! 100,000 single inserts take 66 / 70 / 44 ms with
+//! (`cargo bench --bench tree -- split/`; `docs/performance.md`):
+//! 100,000 single inserts take 66 / 65 / 43 ms with
 //! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
-//! moves 0.49 / 0.48 / 0.46 ms, and 1,000 box queries on the churned tree
-//! 0.25 / 0.30 / 0.28 ms (a bulk-loaded tree of the same boxes: 0.20 ms).
+//! moves 0.39 / 0.41 / 0.39 ms, and 1,000 box queries on the churned tree
+//! 0.22 / 0.25 / 0.24 ms (a bulk-loaded tree of the same boxes: 0.16 ms).
 //! The R* split is the default: queries run every frame, and it leaves the
 //! best tree.
 //!
@@ -192,7 +192,7 @@
 //! the calls from the joins (`query/join.rs`) into their twins compiled for
 //! AVX-512 (`query/join_avx512.rs`, whose sixteen-lane load is the last
 //! `unsafe` block), likewise checked (self join 12–17 % faster; see the
-//! README). Everything else is safe code.
+//! `docs/performance.md`). Everything else is safe code.
 // `deny` rather than `forbid` so that the fenced places can allow it.
 #![deny(unsafe_code)]
 #![warn(missing_docs)]

@@ -132,7 +132,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// node pairs; on the fresh tree, box queries and the self join stay
     /// within 1 % of the full packing's visits, rays within 3 %. 15 leaves
     /// per level-1 node gained nothing and 12 lost; room in the leaves
-    /// themselves made the fresh tree worse (see the README).
+    /// themselves made the fresh tree worse (see `docs/performance.md`).
     fn groups_at(level: u16, entries: usize) -> usize {
         let full = entries.div_ceil(W);
         if level != 1 {
@@ -184,7 +184,7 @@ pub(super) fn group_range(n: usize, groups: usize, g: usize) -> std::ops::Range<
 /// world 20 times wider than tall, fixed slab counts per axis (sort-tile-
 /// recursive) cut thin slices in height, whereas this cuts height only
 /// where boxes are stacked. On the standard scene it halves the nodes a
-/// ray or a join visits (see the README's performance section).
+/// ray or a join visits (see `docs/performance.md`).
 pub(super) fn tile_partition(entries: &mut [Entry], groups: usize) {
     let n = entries.len();
     halve(entries, 0, groups, n, groups);
