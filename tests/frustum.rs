@@ -57,12 +57,42 @@ fn check_views(tree: &RTree<u32, 4>, oracle: &BruteForce<u32>, views: &[Frustum]
             assert_eq!(*keys, oracle.visible(view, mode), "{mode:?} {view:?}");
         }
     }
-    // Exact mode only ever removes entries from the conservative answer.
+    // Exact mode only ever removes entries from the conservative answer,
+    // and never one that has a point strictly inside every plane.
     for view in views {
         let exact = oracle.visible(view, CullMode::Exact);
         let conservative = oracle.visible(view, CullMode::Conservative);
         assert!(exact.iter().all(|k| conservative.binary_search(k).is_ok()));
+        for (key, aabb) in oracle.entries() {
+            if let Some(p) = sample_inside(view, aabb) {
+                assert!(
+                    exact.binary_search(key).is_ok(),
+                    "exact mode culled {aabb:?}, which holds {p:?} inside {view:?}"
+                );
+            }
+        }
     }
+}
+
+/// A point of `aabb` (on a 5 x 5 x 5 lattice over it) strictly inside every
+/// active plane of `view`, computed in `f64`: a witness that the box is
+/// visible, found without the crate's predicates.
+fn sample_inside(view: &Frustum, aabb: &Aabb) -> Option<glam::DVec3> {
+    let (min, max) = (aabb.min.as_dvec3(), aabb.max.as_dvec3());
+    let eye = view.eye().as_dvec3();
+    let steps = 4;
+    (0..=steps)
+        .flat_map(|i| (0..=steps).flat_map(move |j| (0..=steps).map(move |k| (i, j, k))))
+        .map(|(i, j, k)| {
+            let f = glam::DVec3::new(i as f64, j as f64, k as f64) / steps as f64;
+            min + (max - min) * f
+        })
+        .find(|p| {
+            view.planes()
+                .iter()
+                .filter(|h| !h.is_inactive())
+                .all(|h| h.normal.as_dvec3().dot(*p - eye) + h.offset as f64 > 1e-9)
+        })
 }
 
 proptest! {
@@ -175,6 +205,91 @@ fn the_conservative_false_positive_and_its_removal_in_exact_mode() {
                     outside.min + (outside.max - outside.min) * t
                 ));
             }
+        }
+    }
+}
+
+/// Two side planes through the eye whose normals span only a plane: a wedge
+/// with no corner, open along `line`, inside iff `u > |v|` for the other
+/// two coordinates `(u, v)` relative to the eye.
+fn wedge(eye: Vec3, line: usize) -> Frustum {
+    let (u, v) = ((line + 1) % 3, (line + 2) % 3);
+    let plane = |sign: f32| {
+        let mut normal = Vec3::ZERO;
+        normal[u] = 1.0;
+        normal[v] = sign;
+        HalfSpace {
+            normal,
+            offset: 0.0,
+        }
+    };
+    let i = HalfSpace::INACTIVE;
+    Frustum::new(eye, [plane(1.0), plane(-1.0), i, i, i, i]).unwrap()
+}
+
+#[test]
+fn a_wedge_without_corners_culls_exactly_beside_its_edge() {
+    // The box the planes alone let through: each plane has a corner of it
+    // inside, yet all of it lies at u <= -1, behind the wedge's edge.
+    let behind = common::aabb([-2.0, -3.0, -1.0], [-1.0, 3.0, 1.0]);
+    let i = HalfSpace::INACTIVE;
+    let plane = |y: f32| HalfSpace {
+        normal: Vec3::new(1.0, y, 0.0),
+        offset: 0.0,
+    };
+    let along_z = Frustum::new(Vec3::ZERO, [plane(1.0), plane(-1.0), i, i, i, i]).unwrap();
+    let (tree, oracle) = with_distractors(&[behind]);
+    assert!(tree.visible(&along_z, CullMode::Conservative).contains(&0));
+    let exact = tree.visible(&along_z, CullMode::Exact);
+    assert!(!exact.contains(&0));
+    assert_eq!(exact, oracle.visible(&along_z, CullMode::Exact));
+    // Every box of a grid, for wedges open along each axis and away from the
+    // origin: visible in exact mode iff some point has u > |v|, that is iff
+    // max u > the least |v| over the box. Boxes within a rounding of the
+    // boundary are left to the oracle comparison.
+    let mut rng = bevy_rtree::scene::SceneRng::new(31);
+    let mut boxes = Vec::new();
+    for _ in 0..2_000 {
+        let min = Vec3::new(
+            rng.range(-9.0, 9.0),
+            rng.range(-9.0, 9.0),
+            rng.range(-9.0, 9.0),
+        );
+        let size = Vec3::new(
+            rng.range(0.0, 4.0),
+            rng.range(0.0, 4.0),
+            rng.range(0.0, 4.0),
+        );
+        boxes.push(Aabb::new(min, min + size).unwrap());
+    }
+    let (tree, oracle) = build(&boxes);
+    for line in 0..3 {
+        for eye in [Vec3::ZERO, Vec3::new(3.5, -2.25, 1.0)] {
+            let view = wedge(eye, line);
+            let exact = tree.visible(&view, CullMode::Exact);
+            assert_eq!(exact, oracle.visible(&view, CullMode::Exact));
+            let (u, v) = ((line + 1) % 3, (line + 2) % 3);
+            let mut decided = 0;
+            for (key, b) in boxes.iter().enumerate() {
+                let (min, max) = (b.min - eye, b.max - eye);
+                let least_v = if min[v] > 0.0 {
+                    min[v]
+                } else if max[v] < 0.0 {
+                    -max[v]
+                } else {
+                    0.0
+                };
+                let margin = max[u] - least_v;
+                if margin.abs() > 1e-3 {
+                    decided += 1;
+                    assert_eq!(
+                        exact.contains(&(key as u32)),
+                        margin > 0.0,
+                        "{b:?} against the wedge along axis {line} from {eye:?}"
+                    );
+                }
+            }
+            assert!(decided > 1_900);
         }
     }
 }

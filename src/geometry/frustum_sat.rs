@@ -26,6 +26,12 @@ pub struct FrustumSat {
     count: usize,
     /// The open volume is empty (or flat): nothing is visible in exact mode.
     empty: bool,
+    /// Where the planes' normals span only a plane, the volume holds a whole
+    /// line: its (unit) direction. The axes are then projected from the
+    /// slice of the volume through the eye, and `slope` bounds how far each
+    /// axis may lean along the line, rounding included.
+    line: Option<DVec3>,
+    slope: [f64; MAX_AXES],
 }
 
 impl FrustumSat {
@@ -37,7 +43,6 @@ impl FrustumSat {
             .filter(|p| !p.is_inactive())
             .map(|p| (p.normal.as_dvec3(), p.offset as f64))
             .collect();
-        let (vertices, rays) = polytope(&planes);
         let mut sat = FrustumSat {
             eye: frustum.eye().as_dvec3(),
             axes: [DVec3::ZERO; MAX_AXES],
@@ -45,10 +50,31 @@ impl FrustumSat {
             hi: [f64::INFINITY; MAX_AXES],
             count: 0,
             empty: !has_interior(&planes),
+            line: None,
+            slope: [0.0; MAX_AXES],
         };
-        if sat.empty || vertices.is_empty() {
-            // Degenerate (empty or flat) volume: leave it to the planes.
+        if sat.empty {
             return sat;
+        }
+        let (mut vertices, mut rays) = polytope(&planes);
+        if vertices.is_empty() {
+            // No corner: the normals span at most a plane, so the volume
+            // holds every line along their common perpendicular (a wedge of
+            // two side planes, say). The planes' own test misses boxes
+            // beside the wedge's edge, so project the slice of the volume
+            // through the eye, across the line, onto the axes that lie
+            // across it. Normals along a single direction (a half-space or
+            // a slab) leave nothing to separate beyond the planes' test.
+            let Some(line) = common_perpendicular(&planes) else {
+                return sat;
+            };
+            let mut sliced = planes.clone();
+            sliced.extend([(line, 0.0), (-line, 0.0)]);
+            (vertices, rays) = polytope(&sliced);
+            if vertices.is_empty() {
+                return sat;
+            }
+            sat.line = Some(line);
         }
         let mut candidate_axes: Vec<DVec3> = vec![DVec3::X, DVec3::Y, DVec3::Z];
         for i in 0..planes.len() {
@@ -93,6 +119,19 @@ impl FrustumSat {
                     lo = f64::NEG_INFINITY;
                 }
             }
+            if let Some(line) = sat.line {
+                // The volume runs along the line, so an axis that leans
+                // along it sees the volume without end. The axes built
+                // across it lean only by rounding: bound that lean (with
+                // the error of the line itself, a few ulps of its
+                // normals' cross product), and `separates` widens the
+                // interval by it times the box's reach along the line.
+                let lean = axis.dot(line).abs() + 1e-12 * axis.length();
+                if lean > 1e-6 * axis.length() {
+                    continue;
+                }
+                sat.slope[sat.count] = lean;
+            }
             sat.axes[sat.count] = axis;
             sat.lo[sat.count] = lo;
             sat.hi[sat.count] = hi;
@@ -110,10 +149,15 @@ impl FrustumSat {
         let max = aabb.max.as_dvec3() - self.eye;
         let centre = (min + max) * 0.5;
         let half = (max - min) * 0.5;
+        // How far along the volume's line (if it has one) the box reaches
+        // from the slice through the eye.
+        let reach = self
+            .line
+            .map_or(0.0, |line| line.dot(centre).abs() + line.abs().dot(half));
         (0..self.count).any(|i| {
             let axis = self.axes[i];
             let c = axis.dot(centre);
-            let r = axis.abs().dot(half);
+            let r = axis.abs().dot(half) + self.slope[i] * reach;
             c + r < self.lo[i] || c - r > self.hi[i]
         })
     }
@@ -164,6 +208,23 @@ fn polytope(planes: &[(DVec3, f64)]) -> (Vec<DVec3>, Vec<DVec3>) {
         }
     }
     (vertices, rays)
+}
+
+/// The unit direction perpendicular to every normal of `planes`, if their
+/// normals span exactly a plane (no direction if they span space, or all
+/// lie along one line).
+fn common_perpendicular(planes: &[(DVec3, f64)]) -> Option<DVec3> {
+    let line = planes
+        .iter()
+        .enumerate()
+        .flat_map(|(i, a)| planes[i + 1..].iter().map(move |b| a.0.cross(b.0)))
+        .filter(|edge| edge.length_squared() > 0.0)
+        .max_by(|a, b| a.length_squared().total_cmp(&b.length_squared()))?
+        .normalize();
+    let spans_space = planes
+        .iter()
+        .any(|(n, _)| n.dot(line).abs() > 1e-9 * n.length());
+    (!spans_space).then_some(line)
 }
 
 /// Whether `{x : n·x + d > 0 for every plane}` has an interior: the largest

@@ -25,8 +25,13 @@ pub enum CullMode {
     #[default]
     Conservative,
     /// Conservative, and then no separating axis between box and frustum
-    /// (box edges crossed with frustum edges, in `f64`). No false positives
-    /// beyond rounding; costs a few dozen dot products per boundary entry.
+    /// (the box's face normals, and its edges crossed with the frustum's
+    /// edges, in `f64`; the frustum's own planes are the conservative
+    /// test). Where rounding leaves a projection uncertain its interval is
+    /// widened, so rounding can keep a box that lies just outside but never
+    /// drop one that is inside. A frustum whose planes have no common
+    /// corner (two side planes alone, a wedge) is projected from its slice
+    /// through the eye. Costs a few dozen dot products per boundary entry.
     Exact,
 }
 
