@@ -3,7 +3,7 @@
 
 mod common;
 
-use bevy_rtree::{Aabb, ProxyId, RTree, Ray, SpatialError, TreeSettings};
+use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, Ray, SpatialError, TreeSettings};
 use glam::Vec3;
 
 /// Everything observable about a tree: its length, what a query over the
@@ -74,16 +74,27 @@ fn invalid_boxes_are_refused_by_every_mutation() {
 #[test]
 fn invalid_queries_match_nothing_and_do_not_panic() {
     let (tree, _) = populated();
-    for bad in common::invalid_boxes() {
-        if bad == Aabb::INVERTED {
-            assert!(tree.overlapping(&bad).is_empty());
-        }
-        // NaN in any coordinate makes every comparison false.
-        if bad.min.is_nan() || bad.max.is_nan() {
-            assert!(tree.overlapping(&bad).is_empty());
-        }
+    let mut ws = QueryWorkspace::default();
+    // Every entry of `populated` overlaps this box, so a query that ignored
+    // the broken coordinate would match something.
+    let everything = common::aabb([-1e6; 3], [1e6; 3]);
+    assert!(!tree.overlapping(&everything).is_empty());
+    let mut bad_queries = common::invalid_boxes();
+    for axis in 0..3 {
+        // Inverted on one axis only, within the first entry's extent there,
+        // so that each comparison alone would pass for it.
+        let mut inverted = everything;
+        inverted.min[axis] = 0.75;
+        inverted.max[axis] = 0.25;
+        bad_queries.push(inverted);
     }
-    assert!(tree.containing_point(Vec3::NAN).is_empty());
+    for bad in bad_queries {
+        assert!(tree.overlapping(&bad).is_empty(), "{bad:?}");
+        assert!(!tree.any_overlapping(&bad, &mut ws), "{bad:?}");
+    }
+    for point in [Vec3::NAN, Vec3::INFINITY, Vec3::splat(2e15)] {
+        assert!(tree.containing_point(point).is_empty(), "{point:?}");
+    }
 }
 
 #[test]

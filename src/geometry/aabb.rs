@@ -17,9 +17,10 @@ pub const MAX_COORD: f32 = 1e15;
 /// most [`MAX_COORD`]. Zero extent (points, flat boxes) is valid; `-0.0` and
 /// `+0.0` are the same number.
 ///
-/// The fields are public because an `Aabb` is a plain value; every entry point
+/// The fields are public because an `Aabb` is a plain value; every mutation
 /// of the index checks validity and refuses an invalid box with
-/// [`SpatialError::InvalidBox`].
+/// [`SpatialError::InvalidBox`], and a box query with an invalid box matches
+/// nothing.
 ///
 /// ```
 /// use bevy_rtree::Aabb;

@@ -12,12 +12,29 @@ use crate::tree::RTree;
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Calls `visit(key, exact_box)` for every entry whose box overlaps
     /// `query` (closed boxes: touching counts), in no particular order, until
-    /// `visit` breaks. An invalid query box matches nothing: every comparison
-    /// with NaN is false and an inverted box overlaps nothing.
+    /// `visit` breaks. A query box that is not valid ([`Aabb::is_valid`]:
+    /// NaN, infinite, inverted on some axis, or beyond
+    /// [`MAX_COORD`](crate::MAX_COORD)) matches nothing, and so does a point
+    /// that is not a valid point box: no entry is tested against it.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
+    /// let inverted = Aabb { min: Vec3::ONE, max: Vec3::ZERO };
+    /// assert!(tree.overlapping(&inverted).is_empty());
+    /// assert_eq!(tree.overlapping(&Aabb::new(Vec3::ZERO, Vec3::ZERO)?), vec![1]);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
     pub fn visit_overlapping<F>(&self, query: &Aabb, ws: &mut QueryWorkspace, mut visit: F)
     where
         F: FnMut(K, &Aabb) -> ControlFlow<()>,
     {
+        if !query.is_valid() {
+            return;
+        }
         self.visit_overlapping_proxies(query, ws, |proxy, aabb| visit(self.key_of(proxy), aabb));
     }
 
