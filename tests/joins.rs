@@ -59,9 +59,12 @@ proptest! {
         a in prop::collection::vec(common::grid_box(), 0..200),
         b in prop::collection::vec(common::grid_box(), 0..60),
         d in distance(),
+        shared in any::<bool>(),
     ) {
+        // Half the cases give the two sets common keys (one entity in two
+        // layers), which a cross join never pairs with itself.
         let (ta, oa, _) = build::<8>(&a, 0);
-        let (tb, ob, _) = build::<8>(&b, 10_000);
+        let (tb, ob, _) = build::<8>(&b, if shared { 0 } else { 10_000 });
         for mode in MODES {
             prop_assert_eq!(ta.cross_join(&tb, d, mode).unwrap(), oa.cross_join(&ob, d, mode).unwrap());
             let mut swapped: Vec<(u32, u32)> = tb.cross_join(&ta, d, mode).unwrap().into_iter().map(|(x, y)| (y, x)).collect();
@@ -216,6 +219,26 @@ fn a_pair_the_f64_gap_rounds_into_reach_is_found() {
         )
         .unwrap();
         assert_eq!(moved, vec![(0, 1)], "moved join, {mode:?}");
+    }
+}
+
+#[test]
+fn a_key_in_both_sets_is_never_paired_with_itself() {
+    // Key 7 stands for one entity in both sets, with the same box; key 8
+    // overlaps it in the second set.
+    let unit = common::aabb([0.0; 3], [1.0; 3]);
+    let (mut ta, mut oa, _) = build::<8>(&[], 0);
+    let (mut tb, mut ob, _) = build::<8>(&[], 0);
+    ta.insert(7, unit).unwrap();
+    oa.insert(7, unit);
+    for key in [7, 8] {
+        tb.insert(key, unit).unwrap();
+        ob.insert(key, unit);
+    }
+    for mode in MODES {
+        assert_eq!(ta.cross_join(&tb, 0.0, mode).unwrap(), vec![(7, 8)]);
+        assert_eq!(oa.cross_join(&ob, 0.0, mode).unwrap(), vec![(7, 8)]);
+        assert_eq!(tb.cross_join(&ta, 0.0, mode).unwrap(), vec![(8, 7)]);
     }
 }
 

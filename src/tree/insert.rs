@@ -12,7 +12,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// Fails with [`SpatialError::InvalidBox`] (and changes nothing) when the
     /// box is not valid. Keys need not be unique: two entries with the same key
-    /// are two entries.
+    /// are two entries, and answers report each of them by that key (a self
+    /// join pairs them as `(k, k)`). Give each entry its own key where answers
+    /// must tell entries apart, as the plugin does with `Entity`. A cross join
+    /// never pairs a key with itself: across two trees one key stands for one
+    /// thing in both sets (S8, `a != b`).
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree, SpatialError};
