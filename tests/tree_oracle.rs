@@ -6,8 +6,11 @@ mod common;
 use std::collections::BTreeMap;
 
 use bevy_rtree::oracle::BruteForce;
-use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, SplitStrategy, TreeSettings};
-use glam::Vec3;
+use bevy_rtree::{
+    Aabb, CullMode, Frustum, JoinMode, ProxyId, QueryWorkspace, RTree, Ray, SplitStrategy,
+    TreeSettings,
+};
+use glam::{Quat, Vec3};
 use proptest::prelude::*;
 
 #[derive(Clone, Debug)]
@@ -177,13 +180,54 @@ impl<const W: usize> Model<W> {
             assert_eq!(self.tree.get(*id).map(|(k, _)| k), Ok(*key));
         }
     }
+
+    /// Every other query family on the same mutated tree: a ray from `point`
+    /// towards the query box, a view from `point`, a self join, and the
+    /// neighbours of `point`.
+    fn check_other_queries(&self, query: &Aabb, point: Vec3) {
+        let ws = &mut QueryWorkspace::default();
+        let towards = (query.min + query.max) * 0.5 - point;
+        if let Ok(ray) = Ray::new(point, towards, 1.5) {
+            assert_eq!(self.tree.cast_ray(&ray, ws), self.oracle.ray_first(&ray));
+            let mut hits = Vec::new();
+            let all = self.tree.cast_ray_all(&ray, None, ws, &mut hits);
+            assert_eq!(all.map(|()| hits), self.oracle.ray_hits(&ray));
+        }
+        let view = Frustum::perspective(point, Quat::IDENTITY, 1.5, 1.3, 0.25, 12.0).unwrap();
+        for mode in [CullMode::Conservative, CullMode::Exact] {
+            assert_eq!(
+                self.tree.visible(&view, mode),
+                self.oracle.visible(&view, mode)
+            );
+        }
+        for mode in [JoinMode::Euclidean, JoinMode::Chebyshev] {
+            assert_eq!(
+                self.tree.self_join(0.5, mode),
+                self.oracle.self_join(0.5, mode)
+            );
+        }
+        assert_eq!(
+            self.tree.nearest(point, 3, None),
+            self.oracle.nearest(point, 3, None)
+        );
+        assert_eq!(
+            self.tree.within_radius(point, 3.0),
+            self.oracle.within_radius(point, 3.0)
+        );
+    }
 }
 
 fn run<const W: usize>(settings: TreeSettings, ops: &[(Op, Aabb, Vec3)]) {
     let mut model = Model::<W>::new(settings);
-    for (op, query, point) in ops {
+    for (step, (op, query, point)) in ops.iter().enumerate() {
         model.apply(op);
         model.check(query, *point);
+        // The other families cost more per step (the exact frustum test's
+        // preparation above all); every fourth step and the last keep the
+        // run to seconds.
+        if step % 4 == 3 || step + 1 == ops.len() {
+            model.check_other_queries(query, *point);
+        }
     }
 }
 
