@@ -295,6 +295,38 @@ fn a_wedge_without_corners_culls_exactly_beside_its_edge() {
 }
 
 #[test]
+fn a_prism_open_along_a_diagonal_line_is_not_empty() {
+    // Three planes whose normals are all across (1, 0, 1): a prism along that
+    // line, which no box face follows. Its interior was once taken for empty
+    // (its widest inscribed ball lies out at the solver's bounds, where
+    // rounding is large), and exact mode culled everything.
+    let plane = |x: f32, y: f32, z: f32, offset: f32| HalfSpace {
+        normal: Vec3::new(x, y, z),
+        offset,
+    };
+    let i = HalfSpace::INACTIVE;
+    let prism = Frustum::new(
+        Vec3::new(6.5, -6.0, -0.75),
+        [
+            plane(0.0, -2.0, 0.0, 5.0),
+            plane(1.0, 2.0, -1.0, -4.5),
+            plane(-2.0, -2.0, 2.0, 7.0),
+            i,
+            i,
+            i,
+        ],
+    )
+    .unwrap();
+    // The box holds (1.75, -4.3125, -7.25), inside every plane by at least
+    // 0.125.
+    let holds_inside = common::aabb([1.75, -4.75, -7.25], [3.75, -3.0, -7.0]);
+    let (tree, oracle) = with_distractors(&[holds_inside]);
+    let exact = tree.visible(&prism, CullMode::Exact);
+    assert!(exact.contains(&0));
+    assert_eq!(exact, oracle.visible(&prism, CullMode::Exact));
+}
+
+#[test]
 fn a_zero_thickness_frustum_has_only_conservative_false_positives() {
     let near = HalfSpace {
         normal: Vec3::NEG_Z,

@@ -9,6 +9,12 @@ use super::{Aabb, Frustum};
 /// At most 3 box axes plus 15 plane-pair edges times 3 box axes.
 const MAX_AXES: usize = 48;
 
+/// How far (relative) a normal may lean along a volume's line and still
+/// count as across it, and the lean every axis across the line is widened
+/// by: one bound for both, so that the widening covers what the test lets
+/// through.
+const LINE_TOLERANCE: f64 = 1e-12;
+
 /// A frustum prepared for exact box tests (SEMANTICS S7, exact mode).
 ///
 /// Axes: the three box face normals, and each box edge direction crossed
@@ -123,10 +129,10 @@ impl FrustumSat {
                 // The volume runs along the line, so an axis that leans
                 // along it sees the volume without end. The axes built
                 // across it lean only by rounding: bound that lean (with
-                // the error of the line itself, a few ulps of its
-                // normals' cross product), and `separates` widens the
-                // interval by it times the box's reach along the line.
-                let lean = axis.dot(line).abs() + 1e-12 * axis.length();
+                // the line's own error and the planes' lean, both within
+                // `LINE_TOLERANCE`), and `separates` widens the interval by
+                // it times the box's reach along the line.
+                let lean = axis.dot(line).abs() + 2.0 * LINE_TOLERANCE * axis.length();
                 if lean > 1e-6 * axis.length() {
                     continue;
                 }
@@ -223,7 +229,7 @@ fn common_perpendicular(planes: &[(DVec3, f64)]) -> Option<DVec3> {
         .normalize();
     let spans_space = planes
         .iter()
-        .any(|(n, _)| n.dot(line).abs() > 1e-9 * n.length());
+        .any(|(n, _)| n.dot(line).abs() > LINE_TOLERANCE * n.length());
     (!spans_space).then_some(line)
 }
 
@@ -260,9 +266,14 @@ fn has_interior(planes: &[(DVec3, f64)]) -> bool {
                     let Some(x) = solve4([rows[i], rows[j], rows[k], rows[l]]) else {
                         continue;
                     };
+                    // Each row within a rounding of the terms it sums: a
+                    // vertex out at the bounds (a volume open along a line
+                    // that no axis follows) carries errors of its own size.
+                    // Leaning towards "has an interior" only keeps boxes.
                     let feasible = rows.iter().all(|(a, b)| {
+                        let terms = (0..4).map(|k| (a[k] * x[k]).abs()).sum::<f64>();
                         a[0] * x[0] + a[1] * x[1] + a[2] * x[2] + a[3] * x[3]
-                            <= b + 1e-9 * (b.abs() + scale)
+                            <= b + 1e-9 * (b.abs() + scale + terms)
                     });
                     if feasible && x[3] > best {
                         best = x[3];
