@@ -232,12 +232,8 @@ fn a_wedge_without_corners_culls_exactly_beside_its_edge() {
     // The box the planes alone let through: each plane has a corner of it
     // inside, yet all of it lies at u <= -1, behind the wedge's edge.
     let behind = common::aabb([-2.0, -3.0, -1.0], [-1.0, 3.0, 1.0]);
-    let i = HalfSpace::INACTIVE;
-    let plane = |y: f32| HalfSpace {
-        normal: Vec3::new(1.0, y, 0.0),
-        offset: 0.0,
-    };
-    let along_z = Frustum::new(Vec3::ZERO, [plane(1.0), plane(-1.0), i, i, i, i]).unwrap();
+    // Planes (1, 1, 0) and (1, -1, 0) through the origin.
+    let along_z = wedge(Vec3::ZERO, 2);
     let (tree, oracle) = with_distractors(&[behind]);
     assert!(tree.visible(&along_z, CullMode::Conservative).contains(&0));
     let exact = tree.visible(&along_z, CullMode::Exact);
