@@ -65,8 +65,10 @@
 //!   iff finite, `min <= max` per axis and every `|coordinate| <=`
 //!   [`MAX_COORD`]. Points and flat boxes are valid. Faces, edges and corners
 //!   belong to the box, so touching boxes overlap.
-//! - **World boxes from transforms** ([`Aabb::transformed`]) are rounded
-//!   outward by one ulp unless the transform is a pure translation.
+//! - **World boxes from transforms** ([`Aabb::transformed`]) are computed in
+//!   `f64` and rounded outward to `f32`, so they contain the exact image of
+//!   every corner of the local box, unless the transform is a pure
+//!   translation (then `min + t`, `max + t` in `f32`).
 //! - **Mutations are atomic**: `insert`, `update`, `remove` return `Result`;
 //!   on `Err` the index is unchanged. An unknown or stale [`ProxyId`] is an
 //!   error, never a panic. Enlarged ("fat") bounds are internal: acceptance

@@ -257,24 +257,3 @@ fn bad_rays_are_typed_errors() {
         [1f32.to_bits(), 0, 0]
     );
 }
-
-#[test]
-fn world_boxes_from_transforms_round_outward() {
-    use glam::{Affine3A, Quat};
-    let local = common::aabb([-0.3; 3], [0.7; 3]);
-    let far = Vec3::new(1e6, -2e6, 3e5);
-    let transform = Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), far);
-    let world = local.transformed(&transform).unwrap();
-    // Every transformed corner of the local box lies inside the world box.
-    for i in 0..8 {
-        let corner = Vec3::new(
-            if i & 1 == 0 { local.min.x } else { local.max.x },
-            if i & 2 == 0 { local.min.y } else { local.max.y },
-            if i & 4 == 0 { local.min.z } else { local.max.z },
-        );
-        let p = transform.transform_point3(corner);
-        assert!(world.contains_point(p), "corner {p} outside {world:?}");
-    }
-    let bad = Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0));
-    assert_eq!(local.transformed(&bad), Err(SpatialError::InvalidBox));
-}

@@ -165,9 +165,15 @@ impl Aabb {
 
     /// The world box of a local box under an affine transform (SEMANTICS S1).
     ///
-    /// centre' = M * centre, half' = |M3x3| * half; unless the transform is a
-    /// pure translation, min is rounded down and max up by one ulp so that the
-    /// result still contains the exact image far from the origin.
+    /// centre' = M * centre, half' = |M3x3| * half, evaluated in `f64` from
+    /// the `f32` inputs; unless the transform is a pure translation, min is
+    /// then rounded down and max up to `f32`, past the `f64` evaluation's
+    /// own error bound, so that the result contains the exact image of every
+    /// corner of the local box, however far from the origin. (The same
+    /// formula in `f32` with one ulp of outward rounding left an exact
+    /// corner image outside in about 1 of 125 random rotated boxes 1 km out.)
+    /// A pure translation adds in `f32` (`min + t`, `max + t`), as every
+    /// other point of the entity is moved.
     ///
     /// ```
     /// use bevy_rtree::Aabb;
@@ -189,18 +195,54 @@ impl Aabb {
             let t = Vec3::from(transform.translation);
             return Aabb::new(self.min + t, self.max + t);
         }
-        let center = (self.min + self.max) * 0.5;
-        let half = (self.max - self.min) * 0.5;
-        let world_center = transform.transform_point3(center);
-        let abs = glam::Mat3::from_cols(
-            Vec3::from(m.x_axis).abs(),
-            Vec3::from(m.y_axis).abs(),
-            Vec3::from(m.z_axis).abs(),
+        // In f64 the centre and half extents of the f32 box are exact, and so
+        // is every product of an f32 matrix entry with them; only the sums
+        // round, each by at most half an ulp of a value no larger than
+        // `scale` below, so `slack` bounds the error of every coordinate.
+        let center = (self.min.as_dvec3() + self.max.as_dvec3()) * 0.5;
+        let half = (self.max.as_dvec3() - self.min.as_dvec3()) * 0.5;
+        let matrix = glam::DMat3::from_cols(
+            Vec3::from(m.x_axis).as_dvec3(),
+            Vec3::from(m.y_axis).as_dvec3(),
+            Vec3::from(m.z_axis).as_dvec3(),
         );
+        let abs = glam::DMat3::from_cols(
+            matrix.x_axis.abs(),
+            matrix.y_axis.abs(),
+            matrix.z_axis.abs(),
+        );
+        let translation = Vec3::from(transform.translation).as_dvec3();
+        let world_center = matrix * center + translation;
         let world_half = abs * half;
-        let min = (world_center - world_half).to_array().map(f32::next_down);
-        let max = (world_center + world_half).to_array().map(f32::next_up);
+        let scale = abs * center.abs() + translation.abs() + world_half;
+        let slack = scale * (8.0 * f64::EPSILON);
+        let min = (world_center - world_half - slack)
+            .to_array()
+            .map(f32_at_most);
+        let max = (world_center + world_half + slack)
+            .to_array()
+            .map(f32_at_least);
         Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
+    }
+}
+
+/// The largest `f32` not above `x` (`x` finite).
+fn f32_at_most(x: f64) -> f32 {
+    let nearest = x as f32;
+    if f64::from(nearest) > x {
+        nearest.next_down()
+    } else {
+        nearest
+    }
+}
+
+/// The smallest `f32` not below `x` (`x` finite).
+fn f32_at_least(x: f64) -> f32 {
+    let nearest = x as f32;
+    if f64::from(nearest) < x {
+        nearest.next_up()
+    } else {
+        nearest
     }
 }
 
