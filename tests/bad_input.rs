@@ -123,6 +123,9 @@ fn unknown_and_stale_handles_are_refused() {
     assert_eq!(reused.index(), ids[0].index(), "the slot is reused");
     assert_eq!(tree.remove(ids[0]), Err(SpatialError::UnknownProxy));
     assert_eq!(tree.get(ids[0]), Err(SpatialError::UnknownProxy));
+    assert_eq!(tree.enlarged_box(ids[0]), Err(SpatialError::UnknownProxy));
+    assert_eq!(tree.enlarged_box(foreign), Err(SpatialError::UnknownProxy));
+    assert!(!tree.contains(ids[0]));
     let before = snapshot(&tree);
     assert_eq!(
         tree.update_batch(&[(ids[1], far), (ids[0], far)]),
@@ -256,4 +259,46 @@ fn bad_rays_are_typed_errors() {
         subnormal.dir.to_array().map(f32::to_bits),
         [1f32.to_bits(), 0, 0]
     );
+}
+
+/// A query that fails leaves its caller's output as it was: the error is
+/// found before the output is touched.
+#[test]
+fn failed_queries_leave_their_output_as_it_was() {
+    let (tree, _) = populated();
+    let mut ws = QueryWorkspace::default();
+    let mut hits = Vec::new();
+    let good = Ray::new(Vec3::new(-5.0, 0.5, 0.5), Vec3::X, 100.0).unwrap();
+    tree.cast_ray_all(&good, None, &mut ws, &mut hits).unwrap();
+    assert!(!hits.is_empty());
+    let bad = Ray {
+        origin: Vec3::new(-5.0, 0.5, 0.5),
+        dir: Vec3::X,
+        max_t: f32::NAN,
+    };
+    let before = hits.clone();
+    assert_eq!(
+        tree.cast_ray_all(&bad, None, &mut ws, &mut hits),
+        Err(SpatialError::InvalidRay)
+    );
+    assert_eq!(hits, before);
+
+    let mut near = Vec::new();
+    tree.nearest_into(Vec3::ZERO, 3, None, &mut ws, &mut near)
+        .unwrap();
+    assert_eq!(near.len(), 3);
+    let before = near.clone();
+    assert_eq!(
+        tree.nearest_into(Vec3::ZERO, 0, None, &mut ws, &mut near),
+        Err(SpatialError::InvalidCount)
+    );
+    assert_eq!(
+        tree.nearest_into(Vec3::NAN, 3, None, &mut ws, &mut near),
+        Err(SpatialError::InvalidBox)
+    );
+    assert_eq!(
+        tree.within_radius_into(Vec3::ZERO, -1.0, &mut ws, &mut near),
+        Err(SpatialError::InvalidDistance)
+    );
+    assert_eq!(near, before);
 }

@@ -554,7 +554,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Every hit of one ray, sorted by `(t, key)` and cut to `limit`,
-    /// written to `out` (cleared first).
+    /// written to `out` (cleared first). An invalid ray is an
+    /// [`SpatialError::InvalidRay`], checked before `out` is touched.
     pub fn cast_ray_all(
         &self,
         ray: &Ray,
@@ -562,8 +563,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<RayHit<K>>,
     ) -> Result<(), SpatialError> {
+        let ray = ray.canonicalized()?;
         out.clear();
-        self.visit_ray(ray, ws, |key, t| {
+        self.visit_ray(&ray, ws, |key, t| {
             out.push(RayHit { key, t });
             ControlFlow::Continue(f32::INFINITY)
         })?;
