@@ -403,6 +403,68 @@ fn nan_and_zero_normal_planes_are_refused() {
     );
 }
 
+/// `Frustum::perspective` refuses every parameter outside its documented
+/// range (field of view in (0, pi), finite aspect > 0, near > 0, far > near)
+/// and a camera it cannot orient.
+#[test]
+fn perspective_frustums_refuse_bad_parameters() {
+    let nan = f32::NAN;
+    let inf = f32::INFINITY;
+    let pi = std::f32::consts::PI;
+    // (fov_y, aspect, near, far), each with one parameter wrong.
+    let bad = [
+        (0.0, 1.5, 0.1, 10.0),
+        (-1.0, 1.5, 0.1, 10.0),
+        (pi, 1.5, 0.1, 10.0),
+        (inf, 1.5, 0.1, 10.0),
+        (1.0, 0.0, 0.1, 10.0),
+        (1.0, -1.5, 0.1, 10.0),
+        (1.0, nan, 0.1, 10.0),
+        (1.0, inf, 0.1, 10.0),
+        (1.0, 1.5, 0.0, 10.0),
+        (1.0, 1.5, -0.1, 10.0),
+        (1.0, 1.5, nan, 10.0),
+        (1.0, 1.5, inf, inf),
+        (1.0, 1.5, 0.1, 0.1),
+        (1.0, 1.5, 0.1, 0.05),
+        (1.0, 1.5, 0.1, nan),
+        (1.0, 1.5, 0.1, -inf),
+    ];
+    for (fov, aspect, near, far) in bad {
+        assert_eq!(
+            Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, fov, aspect, near, far),
+            Err(SpatialError::InvalidFrustum),
+            "fov {fov} aspect {aspect} near {near} far {far}"
+        );
+    }
+    for rotation in [
+        Quat::from_xyzw(0.0, 0.0, 0.0, 0.0),
+        Quat::from_xyzw(nan, 0.0, 0.0, 1.0),
+    ] {
+        assert_eq!(
+            Frustum::perspective(Vec3::ZERO, rotation, 1.0, 1.5, 0.1, 10.0),
+            Err(SpatialError::InvalidFrustum),
+            "{rotation:?}"
+        );
+    }
+    for eye in [Vec3::new(nan, 0.0, 0.0), Vec3::new(0.0, inf, 0.0)] {
+        assert_eq!(
+            Frustum::perspective(eye, Quat::IDENTITY, 1.0, 1.5, 0.1, 10.0),
+            Err(SpatialError::InvalidFrustum),
+            "{eye}"
+        );
+    }
+    // The limits of the ranges themselves are fine: an infinite far plane,
+    // a tiny near plane, a very wide view.
+    for (fov, aspect, near, far) in [
+        (1.0, 1.5, 0.1, inf),
+        (1.0, 1.5, 1e-6, 1e6),
+        (3.1, 10.0, 0.1, 10.0),
+    ] {
+        assert!(Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, fov, aspect, near, far).is_ok());
+    }
+}
+
 #[test]
 fn a_one_centimetre_box_two_centimetres_inside_stays_visible_a_million_metres_out() {
     // The camera sits a million metres from the origin and looks along +x.
@@ -428,6 +490,33 @@ fn a_one_centimetre_box_two_centimetres_inside_stays_visible_a_million_metres_ou
     for mode in [CullMode::Conservative, CullMode::Exact] {
         assert_eq!(tree.visible(&frustum, mode), vec![0], "{mode:?}");
         assert_eq!(oracle.visible(&frustum, mode), vec![0]);
+    }
+
+    // Among 2,000 centimetre boxes scattered around the camera, so that the
+    // tree prunes real nodes around the two, both modes still agree with
+    // the oracle and keep the inside box while culling the outside one.
+    let mut rng = bevy_rtree::scene::SceneRng::new(6);
+    for key in 2..2_002u32 {
+        let centre = eye
+            + Vec3::new(
+                rng.range(-20.0, 40.0),
+                rng.range(-15.0, 15.0),
+                rng.range(-15.0, 15.0),
+            );
+        let b = Aabb::from_center_half_extents(centre, Vec3::splat(0.005)).unwrap();
+        tree.insert(key, b).unwrap();
+        oracle.insert(key, b);
+    }
+    assert!(tree.height() > 1);
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let visible = tree.visible(&frustum, mode);
+        assert_eq!(visible, oracle.visible(&frustum, mode), "{mode:?}");
+        assert!(visible.contains(&0) && !visible.contains(&1), "{mode:?}");
+        assert!(
+            visible.len() > 100 && visible.len() < 1_900,
+            "{}",
+            visible.len()
+        );
     }
 }
 

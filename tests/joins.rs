@@ -279,3 +279,47 @@ fn the_standard_scene_joins_match_the_sweep() {
         oe.cross_join(&ob, 5.0, JoinMode::Euclidean).unwrap()
     );
 }
+
+/// The incremental join refuses a bad distance or an unknown handle before
+/// it reports any pair, even when good handles come first.
+#[test]
+fn the_moved_join_checks_everything_before_reporting() {
+    let boxes: Vec<Aabb> = (0..50)
+        .map(|i| common::aabb([i as f32 * 0.5, 0.0, 0.0], [i as f32 * 0.5 + 1.0, 1.0, 1.0]))
+        .collect();
+    let (mut tree, _, ids) = build::<16>(&boxes, 0);
+    let stale = ids[49];
+    tree.remove(stale).unwrap();
+    let mut ws = QueryWorkspace::default();
+    let mut reported = 0;
+    let mut count = |_, _| {
+        reported += 1;
+        std::ops::ControlFlow::Continue(())
+    };
+    let cases: [(&[ProxyId], f32, SpatialError); 4] = [
+        (&[ids[0], ids[1], stale], 0.0, SpatialError::UnknownProxy),
+        (&[ids[0], ids[1]], f32::NAN, SpatialError::InvalidDistance),
+        (&[ids[0], ids[1]], -1.0, SpatialError::InvalidDistance),
+        (
+            &[ids[0], ids[1]],
+            f32::INFINITY,
+            SpatialError::InvalidDistance,
+        ),
+    ];
+    for (moved, d, error) in cases {
+        for mode in MODES {
+            assert_eq!(
+                tree.visit_self_join_moved(moved, d, mode, &mut ws, &mut count),
+                Err(error),
+                "{d} {mode:?}"
+            );
+        }
+    }
+    // The good handles alone do have pairs to report.
+    tree.visit_self_join_moved(&ids[..2], 0.0, JoinMode::Euclidean, &mut ws, &mut count)
+        .unwrap();
+    assert_eq!(
+        reported, 4,
+        "(0, 1), (0, 2), (1, 2) and (1, 3): faces touch"
+    );
+}

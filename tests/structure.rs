@@ -251,3 +251,126 @@ fn optimize_packs_churned_leaves_full_and_frees_the_rest() {
         oracle.overlapping(&everything)
     );
 }
+
+/// Boxes with faces at exactly `±MAX_COORD` are valid: the tree stores,
+/// moves and answers them like any other (its enlarged boxes stay within
+/// the limit), among ordinary boxes near the origin, and every query family
+/// agrees with the oracle. One step past the limit is refused.
+#[test]
+fn boxes_at_the_coordinate_limit_are_indexed_and_answered() {
+    use bevy_rtree::{CullMode, Frustum, JoinMode, MAX_COORD, QueryWorkspace, Ray, SpatialError};
+    use glam::Quat;
+
+    let m = MAX_COORD;
+    let limits = [
+        common::aabb([m, 0.0, 0.0], [m, 1.0, 1.0]),
+        common::aabb([-m, -m, -m], [-m + 1e9, -m + 1e9, -m + 1e9]),
+        common::aabb([-m, -1.0, -1.0], [m, 1.0, 1.0]),
+        common::aabb([-m; 3], [m; 3]),
+        common::aabb([0.0, m, 0.0], [0.0, m, 0.0]),
+        common::aabb([m - 1e9, -m, m - 1e9], [m, -m, m]),
+    ];
+    let mut tree = RTree::<u32>::new();
+    let mut oracle = BruteForce::default();
+    let mut ids = Vec::new();
+    for (i, b) in limits.iter().enumerate() {
+        ids.push(tree.insert(i as u32, *b).unwrap());
+        oracle.insert(i as u32, *b);
+        tree.validate().unwrap();
+    }
+    for i in 0..1_000u32 {
+        let key = 100 + i;
+        let p = Vec3::new((i % 10) as f32, (i / 10 % 10) as f32, (i / 100) as f32) * 3.0;
+        tree.insert(key, unit_at(p)).unwrap();
+        oracle.insert(key, unit_at(p));
+    }
+    tree.validate().unwrap();
+    for id in &ids {
+        let fat = tree.enlarged_box(*id).unwrap();
+        assert!(fat.is_valid(), "{fat:?}");
+    }
+    // Moves to, along and away from the limit.
+    let moves = [
+        (0, common::aabb([m, 5.0, 5.0], [m, 6.0, 6.0])),
+        (4, common::aabb([-m, -m, 0.0], [-m, -m, 0.0])),
+        (5, common::aabb([1.0; 3], [2.0; 3])),
+    ];
+    for (i, b) in moves {
+        tree.update(ids[i], b).unwrap();
+        oracle.update(i as u32, b);
+        tree.validate().unwrap();
+    }
+    let past = common::aabb([0.0; 3], [1.0; 3]);
+    let mut beyond = past;
+    beyond.max.x = m.next_up();
+    assert_eq!(tree.update(ids[5], beyond), Err(SpatialError::InvalidBox));
+    assert_eq!(tree.insert(7, beyond), Err(SpatialError::InvalidBox));
+    tree.validate().unwrap();
+
+    let queries = [
+        common::aabb([m; 3], [m; 3]),
+        common::aabb([m - 1.0, 0.0, 0.0], [m, 10.0, 10.0]),
+        common::aabb([-m; 3], [-m; 3]),
+        common::aabb([0.0; 3], [4.0; 3]),
+        common::aabb([-m; 3], [m; 3]),
+    ];
+    for q in &queries {
+        assert_eq!(tree.overlapping(q), oracle.overlapping(q), "{q:?}");
+    }
+    for p in [
+        Vec3::new(m, 5.5, 5.5),
+        Vec3::splat(-m),
+        Vec3::ZERO,
+        Vec3::splat(m),
+    ] {
+        assert_eq!(tree.containing_point(p), oracle.containing_point(p), "{p}");
+    }
+    let mut ws = QueryWorkspace::default();
+    let rays = [
+        Ray::new(Vec3::new(-m, 0.5, 0.5), Vec3::X, f32::INFINITY).unwrap(),
+        Ray::new(Vec3::new(0.0, 5.5, 5.5), Vec3::X, 2.0 * m).unwrap(),
+        Ray::new(Vec3::new(m, 5.5, 5.5), Vec3::NEG_X, m).unwrap(),
+        Ray::new(Vec3::splat(-m), Vec3::ONE, f32::INFINITY).unwrap(),
+        Ray::new(Vec3::new(0.5, 0.5, -m), Vec3::Z, f32::INFINITY).unwrap(),
+    ];
+    for ray in &rays {
+        let mut all = Vec::new();
+        tree.cast_ray_all(ray, None, &mut ws, &mut all).unwrap();
+        assert_eq!(Ok(all), oracle.ray_hits(ray), "{ray:?}");
+    }
+    for eye in [Vec3::ZERO, Vec3::new(m, 5.5, 5.5), Vec3::splat(-m)] {
+        let frustum =
+            Frustum::perspective(eye, Quat::IDENTITY, 1.2, 1.5, 0.1, f32::INFINITY).unwrap();
+        for mode in [CullMode::Conservative, CullMode::Exact] {
+            assert_eq!(
+                tree.visible(&frustum, mode),
+                oracle.visible(&frustum, mode),
+                "{eye} {mode:?}"
+            );
+        }
+    }
+    for mode in [JoinMode::Euclidean, JoinMode::Chebyshev] {
+        for d in [0.0, 5.0, 1e9] {
+            assert_eq!(
+                tree.self_join(d, mode),
+                oracle.self_join(d, mode),
+                "{d} {mode:?}"
+            );
+        }
+    }
+    for point in [Vec3::new(m, 0.0, 0.0), Vec3::splat(-m), Vec3::splat(1.5)] {
+        let keys = |n: Vec<bevy_rtree::Neighbor<u32>>| -> Vec<(u32, f64)> {
+            n.iter().map(|n| (n.key, n.distance_sq)).collect()
+        };
+        assert_eq!(
+            tree.nearest(point, 5, None).map(keys),
+            oracle.nearest(point, 5, None).map(keys),
+            "{point}"
+        );
+    }
+    for id in ids {
+        tree.remove(id).unwrap();
+        tree.validate().unwrap();
+    }
+    assert_eq!(tree.len(), 1_000);
+}
