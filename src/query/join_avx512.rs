@@ -6,8 +6,8 @@
 //! lane of one against the other's. [`Node::overlap_mask_among`] tests four
 //! lanes per instruction (the default x86-64 target assumes SSE2 only), so
 //! a node of the default width takes four groups of six compares. With
-//! AVX-512 one group of six masked compares covers all sixteen lanes, each
-//! compare narrowing the lanes the previous ones kept. The joins' traversal
+//! AVX-512 one group of six compares covers all sixteen lanes, their masks
+//! joined by ANDs. The joins' traversal
 //! is compiled a second time with AVX-512 enabled, and [`avx512_tests_nodes`]
 //! chooses it at run time. Measured on the standard scene, self join of
 //! 100,000 entries in a probe, alternating builds: about 4.8 → 3.9 ms (see
@@ -25,9 +25,7 @@
 //!
 //! [`Node::overlap_mask_among`]: crate::tree::node::Node::overlap_mask_among
 
-use std::arch::x86_64::{
-    __m512, _CMP_LE_OQ, _mm512_loadu_ps, _mm512_mask_cmp_ps_mask, _mm512_set1_ps,
-};
+use std::arch::x86_64::{__m512, _CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_loadu_ps, _mm512_set1_ps};
 use std::ops::ControlFlow;
 
 use super::QueryWorkspace;
@@ -73,18 +71,25 @@ pub(super) fn avx512_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, la
     let hi = query.max.to_array();
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_AVX512_TEST) {
-        // Each compare keeps only the lanes the previous ones kept, so the
-        // mask starts as the lanes asked for and ends as their answer.
-        let mut kept = (lanes >> first) as u16;
-        if kept == 0 {
+        // Six independent compares, one per face, joined by a tree of ANDs.
+        // Each compare could keep only the lanes the previous one kept (a
+        // masked compare), but that chains six compare latencies per test,
+        // and a join runs a handful of tests per node pair back to back:
+        // apart, self join 2.70–2.87 → 2.41–2.51 ms in a probe on an AMD
+        // EPYC (Zen 4), alternating builds, the same pairs. The bits are
+        // the same: the conjunction of the same six compares.
+        let asked = (lanes >> first) as u16;
+        if asked == 0 {
             continue;
         }
+        let mut faces = [0u16; 6];
         for axis in 0..3 {
             let min = sixteen_lanes(&node.min[axis], first);
             let max = sixteen_lanes(&node.max[axis], first);
-            kept = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(kept, min, _mm512_set1_ps(hi[axis]));
-            kept = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(kept, _mm512_set1_ps(lo[axis]), max);
+            faces[2 * axis] = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(min, _mm512_set1_ps(hi[axis]));
+            faces[2 * axis + 1] = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(_mm512_set1_ps(lo[axis]), max);
         }
+        let kept = asked & (faces[0] & faces[1]) & (faces[2] & faces[3]) & (faces[4] & faces[5]);
         mask |= (kept as u32) << first;
     }
     mask
