@@ -253,9 +253,10 @@ fn optimize_packs_churned_leaves_full_and_frees_the_rest() {
 }
 
 /// Boxes with faces at exactly `±MAX_COORD` are valid: the tree stores,
-/// moves and answers them like any other (its enlarged boxes stay within
-/// the limit), among ordinary boxes near the origin, and every query family
-/// agrees with the oracle. One step past the limit is refused.
+/// moves and answers them like any other (its enlarged boxes, stretched
+/// along a move, are cut at the limit), among ordinary boxes near the
+/// origin, and every query family tried agrees with the oracle. One step
+/// past the limit is refused.
 #[test]
 fn boxes_at_the_coordinate_limit_are_indexed_and_answered() {
     use bevy_rtree::{CullMode, Frustum, JoinMode, MAX_COORD, QueryWorkspace, Ray, SpatialError};
@@ -299,6 +300,9 @@ fn boxes_at_the_coordinate_limit_are_indexed_and_answered() {
         tree.update(ids[i], b).unwrap();
         oracle.update(i as u32, b);
         tree.validate().unwrap();
+        // A move of 2e15 would stretch the box four times that far ahead.
+        let fat = tree.enlarged_box(ids[i]).unwrap();
+        assert!(fat.is_valid() && fat.contains(&b), "{fat:?}");
     }
     let past = common::aabb([0.0; 3], [1.0; 3]);
     let mut beyond = past;

@@ -4,7 +4,7 @@
 use glam::Vec3;
 
 use super::SplitStrategy;
-use crate::geometry::{Aabb, SpatialError};
+use crate::geometry::{Aabb, MAX_COORD, SpatialError};
 
 /// Tuning of an [`RTree`](super::RTree). Every field has a documented range;
 /// [`TreeSettings::validate`] enforces it.
@@ -102,18 +102,20 @@ impl TreeSettings {
         ((self.repack_fraction * capacity).ceil() as u32).max(1)
     }
 
-    /// The enlarged box for `exact` after a move by `displacement`.
+    /// The enlarged box for `exact` after a move by `displacement`, cut to
+    /// `±MAX_COORD` so that it is a valid box too.
     ///
     /// Always contains `exact`: every term added to `max` (subtracted from
-    /// `min`) is non-negative, and f32 rounding of `x + y` with `y >= 0` never
-    /// goes below `x`.
+    /// `min`) is non-negative, f32 rounding of `x + y` with `y >= 0` never
+    /// goes below `x`, and a valid `exact` lies within `±MAX_COORD`.
     #[inline]
     pub(crate) fn fatten(&self, exact: &Aabb, displacement: Vec3) -> Aabb {
         let grow = Vec3::splat(self.margin) + exact.extent() * self.margin_fraction;
         let ahead = displacement * self.displacement_factor;
+        let limit = Vec3::splat(MAX_COORD);
         Aabb {
-            min: exact.min - grow + ahead.min(Vec3::ZERO),
-            max: exact.max + grow + ahead.max(Vec3::ZERO),
+            min: (exact.min - grow + ahead.min(Vec3::ZERO)).max(-limit),
+            max: (exact.max + grow + ahead.max(Vec3::ZERO)).min(limit),
         }
     }
 }

@@ -37,7 +37,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// root has at least two children; all leaves are at the same depth;
     /// unused lanes are inverted; the number of leaf entries equals `len()`
     /// and the number of live handles, and each handle points at the lane
-    /// that holds it; every stored exact box is valid; each node's copy of
+    /// that holds it; every stored exact and enlarged box is valid; each
+    /// node's copy of
     /// the bound its parent holds for it matches that lane (all space for
     /// the root); free nodes plus live nodes make up the pool.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
@@ -116,8 +117,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                         "proxy {child} has invalid box {lane_box:?}"
                     );
                     ensure!(
-                        proxy.fat.contains(&lane_box),
-                        "proxy {child}: enlarged box misses exact box"
+                        proxy.fat.is_valid() && proxy.fat.contains(&lane_box),
+                        "proxy {child}: enlarged box {:?} is invalid or misses exact box",
+                        proxy.fat
                     );
                 } else {
                     ensure!(
