@@ -405,13 +405,14 @@ fn nan_and_zero_normal_planes_are_refused() {
 
 /// `Frustum::perspective` refuses every parameter outside its documented
 /// range (field of view in (0, pi), finite aspect > 0, near > 0, far > near)
-/// and a camera it cannot orient.
+/// and a rotation that is zero or not a number.
 #[test]
 fn perspective_frustums_refuse_bad_parameters() {
     let nan = f32::NAN;
     let inf = f32::INFINITY;
     let pi = std::f32::consts::PI;
-    // (fov_y, aspect, near, far), each with one parameter wrong.
+    // (fov_y, aspect, near, far), each with one parameter out of its range
+    // (an infinite near plane leaves no far plane beyond it).
     let bad = [
         (0.0, 1.5, 0.1, 10.0),
         (-1.0, 1.5, 0.1, 10.0),

@@ -320,6 +320,6 @@ fn the_moved_join_checks_everything_before_reporting() {
         .unwrap();
     assert_eq!(
         reported, 4,
-        "(0, 1), (0, 2), (1, 2) and (1, 3): faces touch"
+        "(0, 1) and (1, 2) overlap, (0, 2) and (1, 3) touch"
     );
 }

@@ -169,11 +169,11 @@ impl Aabb {
     /// the `f32` inputs; unless the transform is a pure translation, min is
     /// then rounded down and max up to `f32`, past the `f64` evaluation's
     /// own error bound, so that the result contains the exact image of every
-    /// corner of the local box, however far from the origin. (The same
-    /// formula in `f32` with one ulp of outward rounding left an exact
-    /// corner image outside in about 1 of 125 random rotated boxes 1 km out.)
-    /// A pure translation adds in `f32` (`min + t`, `max + t`), as every
-    /// other point of the entity is moved.
+    /// corner of the local box, however far from the origin (in `f32`, the
+    /// rounding of the centre alone can exceed an ulp of the result). A pure
+    /// translation adds in `f32` (`min + t`, `max + t`), as every other
+    /// point of the entity is moved. A result beyond [`MAX_COORD`] is an
+    /// [`SpatialError::InvalidBox`].
     ///
     /// ```
     /// use bevy_rtree::Aabb;
@@ -195,10 +195,12 @@ impl Aabb {
             let t = Vec3::from(transform.translation);
             return Aabb::new(self.min + t, self.max + t);
         }
-        // In f64 the centre and half extents of the f32 box are exact, and so
-        // is every product of an f32 matrix entry with them; only the sums
-        // round, each by at most half an ulp of a value no larger than
-        // `scale` below, so `slack` bounds the error of every coordinate.
+        // The error budget, with u = 2^-53 and `scale` below (the sum of the
+        // magnitudes that enter a coordinate): the centre and half extents
+        // round by at most u of themselves, each 3-term product row with the
+        // translation by at most 4u of its magnitudes, the half extents' row
+        // by 3u, and the final sum and the slack's own subtraction by one
+        // rounding each: about 7u * scale in all. `slack` is 16u * scale.
         let center = (self.min.as_dvec3() + self.max.as_dvec3()) * 0.5;
         let half = (self.max.as_dvec3() - self.min.as_dvec3()) * 0.5;
         let matrix = glam::DMat3::from_cols(

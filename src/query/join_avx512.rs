@@ -7,9 +7,8 @@
 //! lanes per instruction (the default x86-64 target assumes SSE2 only), so
 //! a node of the default width takes four groups of six compares. With
 //! AVX-512 one group of six compares covers all sixteen lanes, their masks
-//! joined by ANDs. The joins' traversal
-//! is compiled a second time with AVX-512 enabled, and [`avx512_tests_nodes`]
-//! chooses it at run time. Measured on the standard scene, self join of
+//! joined by ANDs. The joins' traversal is compiled a second time with
+//! AVX-512 enabled, and [`avx512_tests_nodes`] chooses it at run time. Measured on the standard scene, self join of
 //! 100,000 entries in a probe, alternating builds: about 4.8 → 3.9 ms (see
 //! the CHANGELOG for the bench run), with the same pairs in the same order.
 //!
@@ -74,10 +73,11 @@ pub(super) fn avx512_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, la
         // Six independent compares, one per face, joined by a tree of ANDs.
         // Each compare could keep only the lanes the previous one kept (a
         // masked compare), but that chains six compare latencies per test,
-        // and a join runs a handful of tests per node pair back to back:
-        // apart, self join 2.70–2.87 → 2.41–2.51 ms in a probe on an AMD
-        // EPYC (Zen 4), alternating builds, the same pairs. The bits are
-        // the same: the conjunction of the same six compares.
+        // and a join runs a handful of tests per node pair back to back.
+        // With the compares independent, the self join of the standard
+        // scene took 2.41–2.51 ms against 2.70–2.87 ms chained (alternating
+        // builds on an AMD EPYC, Zen 4), with the same pairs: the bits are
+        // the conjunction of the same six compares either way.
         let asked = (lanes >> first) as u16;
         if asked == 0 {
             continue;
