@@ -8,9 +8,10 @@
 //! a node of the default width takes four groups of six compares. With
 //! AVX-512 one group of six compares covers all sixteen lanes, their masks
 //! joined by ANDs. The joins' traversal is compiled a second time with
-//! AVX-512 enabled, and [`avx512_tests_nodes`] chooses it at run time. Measured on the standard scene, self join of
-//! 100,000 entries in a probe, alternating builds: about 4.8 → 3.9 ms (see
-//! the CHANGELOG for the bench run), with the same pairs in the same order.
+//! AVX-512 enabled, and [`avx512_tests_nodes`] chooses it at run time.
+//! Measured on the standard scene, self join of 100,000 entries in a probe,
+//! alternating builds: about 4.8 → 3.9 ms (see the CHANGELOG for the bench
+//! run), with the same pairs in the same order.
 //!
 //! The test is a compare per face, as the four-lane one, so it agrees with
 //! the scalar predicate bit for bit (a unit test holds it to that).

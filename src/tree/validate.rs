@@ -38,9 +38,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// unused lanes are inverted; the number of leaf entries equals `len()`
     /// and the number of live handles, and each handle points at the lane
     /// that holds it; every stored exact and enlarged box is valid; each
-    /// node's copy of
-    /// the bound its parent holds for it matches that lane (all space for
-    /// the root); free nodes plus live nodes make up the pool.
+    /// node's copy of the bound its parent holds for it matches that lane
+    /// (all space for the root); free nodes plus live nodes make up the
+    /// pool.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         let root = self.root;
         ensure!(
