@@ -304,8 +304,7 @@ fn boxes_at_the_coordinate_limit_are_indexed_and_answered() {
         let fat = tree.enlarged_box(ids[i]).unwrap();
         assert!(fat.is_valid() && fat.contains(&b), "{fat:?}");
     }
-    let past = common::aabb([0.0; 3], [1.0; 3]);
-    let mut beyond = past;
+    let mut beyond = common::aabb([0.0; 3], [1.0; 3]);
     beyond.max.x = m.next_up();
     assert_eq!(tree.update(ids[5], beyond), Err(SpatialError::InvalidBox));
     assert_eq!(tree.insert(7, beyond), Err(SpatialError::InvalidBox));

@@ -1,6 +1,8 @@
 //! The automatic path from `GlobalTransform` (feature `bevy`).
 #![cfg(feature = "bevy")]
 
+mod common;
+
 use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;
 use bevy_rtree::Aabb;
@@ -60,13 +62,8 @@ fn world_boxes_follow_propagated_transforms() {
     app.update();
     let rotated = app.world().resource::<SpatialIndex>().get(child).unwrap();
     let global = *app.world().get::<GlobalTransform>(child).unwrap();
-    for corner in 0..8 {
-        let c = Vec3::new(
-            if corner & 1 == 0 { -1.0 } else { 1.0 },
-            if corner & 2 == 0 { -1.0 } else { 1.0 },
-            if corner & 4 == 0 { -1.0 } else { 1.0 },
-        );
-        assert!(rotated.contains_point(global.transform_point(c)));
+    for corner in common::corners(&local()) {
+        assert!(rotated.contains_point(global.transform_point(corner)));
     }
     app.world().resource::<SpatialIndex>().validate().unwrap();
 }

@@ -25,16 +25,6 @@ fn exact_image(transform: &Affine3A, p: Vec3) -> [f64; 3] {
     out
 }
 
-fn corners(b: &Aabb) -> impl Iterator<Item = Vec3> + '_ {
-    (0..8).map(move |i| {
-        Vec3::new(
-            if i & 1 == 0 { b.min.x } else { b.max.x },
-            if i & 2 == 0 { b.min.y } else { b.max.y },
-            if i & 4 == 0 { b.min.z } else { b.max.z },
-        )
-    })
-}
-
 /// A coordinate of magnitude up to `10^exponent`, either sign.
 fn far(exponent: i32, unit: f64) -> f32 {
     ((unit * 2.0 - 1.0) * 10f64.powi(exponent)) as f32
@@ -74,7 +64,7 @@ proptest! {
         (transform, local) in transform_and_box(),
     ) {
         let world = local.transformed(&transform).unwrap();
-        for corner in corners(&local) {
+        for corner in common::corners(&local) {
             let image = exact_image(&transform, corner);
             for axis in 0..3 {
                 prop_assert!(
@@ -87,14 +77,15 @@ proptest! {
     }
 
     /// The outward rounding costs little: each face lies within two `f32`
-    /// ulps of the box the exact corner images span.
+    /// ulps of the box the exact corner images span, plus the `f64` error
+    /// bound it is widened by.
     #[test]
     fn world_boxes_are_tight(
         (transform, local) in transform_and_box(),
     ) {
         let world = local.transformed(&transform).unwrap();
         for axis in 0..3 {
-            let images: Vec<f64> = corners(&local)
+            let images: Vec<f64> = common::corners(&local)
                 .map(|corner| exact_image(&transform, corner)[axis])
                 .collect();
             let lo = images.iter().copied().fold(f64::INFINITY, f64::min);
@@ -135,7 +126,7 @@ fn a_rotated_box_far_out_contains_its_transformed_corners() {
     let far = Vec3::new(1e6, -2e6, 3e5);
     let transform = Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), far);
     let world = local.transformed(&transform).unwrap();
-    for corner in corners(&local) {
+    for corner in common::corners(&local) {
         let p = transform.transform_point3(corner);
         assert!(world.contains_point(p), "corner {p} outside {world:?}");
     }

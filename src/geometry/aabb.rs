@@ -203,16 +203,8 @@ impl Aabb {
         // rounding each: about 7u * scale in all. `slack` is 16u * scale.
         let center = (self.min.as_dvec3() + self.max.as_dvec3()) * 0.5;
         let half = (self.max.as_dvec3() - self.min.as_dvec3()) * 0.5;
-        let matrix = glam::DMat3::from_cols(
-            Vec3::from(m.x_axis).as_dvec3(),
-            Vec3::from(m.y_axis).as_dvec3(),
-            Vec3::from(m.z_axis).as_dvec3(),
-        );
-        let abs = glam::DMat3::from_cols(
-            matrix.x_axis.abs(),
-            matrix.y_axis.abs(),
-            matrix.z_axis.abs(),
-        );
+        let matrix = glam::Mat3::from(m).as_dmat3();
+        let abs = matrix.abs();
         let translation = Vec3::from(transform.translation).as_dvec3();
         let world_center = matrix * center + translation;
         let world_half = abs * half;

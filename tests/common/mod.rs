@@ -37,6 +37,17 @@ pub fn aabb(min: [f32; 3], max: [f32; 3]) -> Aabb {
     Aabb::new(Vec3::from(min), Vec3::from(max)).expect("valid test box")
 }
 
+/// The eight corners of `b`.
+pub fn corners(b: &Aabb) -> impl Iterator<Item = Vec3> + '_ {
+    (0..8).map(move |i| {
+        Vec3::new(
+            if i & 1 == 0 { b.min.x } else { b.max.x },
+            if i & 2 == 0 { b.min.y } else { b.max.y },
+            if i & 4 == 0 { b.min.z } else { b.max.z },
+        )
+    })
+}
+
 /// Boxes that are not valid: NaN, infinite, inverted, beyond MAX_COORD.
 pub fn invalid_boxes() -> Vec<Aabb> {
     let ok = Vec3::ONE;
