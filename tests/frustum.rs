@@ -466,6 +466,38 @@ fn perspective_frustums_refuse_bad_parameters() {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(500))]
+
+    /// A rotation that drifted from unit length orients the camera as its
+    /// unit quaternion does: every plane of the frustum stays where the unit
+    /// rotation puts it (up to the rounding of the normalization), so the
+    /// near and far planes keep their distances from the eye.
+    #[test]
+    fn perspective_frustums_normalize_their_rotation(
+        yaw in 0.0f32..std::f32::consts::TAU,
+        pitch in -1.5f32..1.5,
+        roll in -1.0f32..1.0,
+        length in prop_oneof![0.5f32..2.0, 1e-3f32..1e-2, 1e2f32..1e3],
+    ) {
+        let unit = Quat::from_euler(EulerRot::YXZ, yaw, pitch, roll);
+        let scaled = Quat::from_vec4(glam::Vec4::from(unit) * length);
+        let eye = Vec3::new(3.0, -2.0, 7.0);
+        let want = Frustum::perspective(eye, unit, 1.2, 1.6, 0.25, 80.0).unwrap();
+        let got = Frustum::perspective(eye, scaled, 1.2, 1.6, 0.25, 80.0).unwrap();
+        for (w, g) in want.planes().iter().zip(got.planes()) {
+            prop_assert!(
+                (w.normal - g.normal).length() <= 1e-5,
+                "normal {} against {}", g.normal, w.normal
+            );
+            prop_assert!(
+                (w.offset - g.offset).abs() <= 1e-5 * w.offset.abs().max(1.0),
+                "offset {} against {}", g.offset, w.offset
+            );
+        }
+    }
+}
+
 #[test]
 fn a_one_centimetre_box_two_centimetres_inside_stays_visible_a_million_metres_out() {
     // The camera sits a million metres from the origin and looks along +x.

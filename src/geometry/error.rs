@@ -25,7 +25,9 @@ pub enum SpatialError {
     /// after canonicalisation, or whose `max_t` is negative or NaN.
     InvalidRay,
     /// A frustum with a NaN plane, a zero normal with a finite offset, or a
-    /// non-finite eye position.
+    /// non-finite eye position; for [`Frustum::perspective`](crate::Frustum::perspective),
+    /// also a camera parameter out of its range or a zero or non-finite
+    /// rotation.
     InvalidFrustum,
     /// A distance that is negative, NaN or infinite.
     InvalidDistance,
@@ -45,7 +47,9 @@ impl fmt::Display for SpatialError {
             SpatialError::InvalidRay => {
                 "invalid ray: non-finite origin, zero direction or bad max_t"
             }
-            SpatialError::InvalidFrustum => "invalid frustum: NaN plane or zero normal",
+            SpatialError::InvalidFrustum => {
+                "invalid frustum: NaN plane, zero normal or camera parameter out of range"
+            }
             SpatialError::InvalidDistance => "invalid distance: must be finite and >= 0",
             SpatialError::InvalidCount => "invalid count: must be at least 1",
             SpatialError::UnknownProxy => "unknown proxy: not a live entry of this index",

@@ -90,6 +90,27 @@ impl Frustum {
     /// vertical field of view `fov_y` in radians, `aspect` = width / height,
     /// `near` > 0 and `far` > `near` in metres (`far = inf` makes the far plane
     /// inactive).
+    ///
+    /// `rotation` is normalized first, so a quaternion that drifted from unit
+    /// length (after many composed rotations, say) orients the camera as its
+    /// unit quaternion does; a zero or non-finite one is an
+    /// [`SpatialError::InvalidFrustum`].
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, Frustum};
+    /// use glam::{Quat, Vec3};
+    ///
+    /// let turned = Quat::from_rotation_y(0.5);
+    /// let view = Frustum::perspective(Vec3::ZERO, turned, 1.0, 1.5, 0.1, 100.0)?;
+    /// let drifted = Quat::from_vec4(turned.to_array().map(|c| c * 1.1).into());
+    /// let same = Frustum::perspective(Vec3::ZERO, drifted, 1.0, 1.5, 0.1, 100.0)?;
+    /// // The near plane stays 0.1 m from the eye: a box 0.09 m ahead is culled.
+    /// let ahead = turned * Vec3::new(0.0, 0.0, -0.09);
+    /// let close = Aabb::new(ahead - 0.001, ahead + 0.001)?;
+    /// assert!(!view.intersects_conservative(&close));
+    /// assert!(!same.intersects_conservative(&close));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
     pub fn perspective(
         eye: Vec3,
         rotation: Quat,
@@ -102,6 +123,12 @@ impl Frustum {
         if !(fov_ok && aspect > 0.0 && aspect.is_finite() && near > 0.0 && far > near) {
             return Err(SpatialError::InvalidFrustum);
         }
+        // A quaternion of length s rotates and scales by s²: unnormalized,
+        // it would move the near and far planes to near / s² and far / s².
+        let Some(unit) = glam::Vec4::from(rotation).try_normalize() else {
+            return Err(SpatialError::InvalidFrustum);
+        };
+        let rotation = Quat::from_vec4(unit);
         let forward = rotation * Vec3::NEG_Z;
         let up = rotation * Vec3::Y;
         let right = rotation * Vec3::X;
