@@ -525,7 +525,12 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             out,
             |item| self.node(item.a).is_leaf(),
             |pair, ws, mut visit| self.self_join_step(pair, test, ws, four_lane_masks, &mut visit),
-            |ws, mut visit| self.drain_self_join(test, ws, &mut visit),
+            |ws, pairs| {
+                self.drain_self_join(test, ws, &mut |a, b| {
+                    pairs.push((a, b));
+                    ControlFlow::Continue(())
+                })
+            },
         );
         Ok(())
     }
@@ -555,7 +560,12 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             |pair, ws, mut visit| {
                 self.cross_join_step(other, pair, test, ws, four_lane_masks, &mut visit)
             },
-            |ws, mut visit| self.drain_cross_join(other, test, ws, &mut visit),
+            |ws, pairs| {
+                self.drain_cross_join(other, test, ws, &mut |a, b| {
+                    pairs.push((a, b));
+                    ControlFlow::Continue(())
+                })
+            },
         );
         Ok(())
     }
@@ -580,8 +590,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             &mut QueryWorkspace,
             &mut dyn FnMut(K, K) -> ControlFlow<()>,
         ) -> ControlFlow<()>,
-        Drain: Fn(&mut QueryWorkspace, &mut dyn FnMut(K, K) -> ControlFlow<()>) -> ControlFlow<()>
-            + Sync,
+        Drain: Fn(&mut QueryWorkspace, &mut Vec<(K, K)>) -> ControlFlow<()> + Sync,
     {
         pws.tasks(count);
         let ws = &mut pws.tasks[0].ws;
@@ -610,12 +619,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         run_claimed(frontier, tasks, |&item, task| {
             task.ws.join_stack.clear();
             task.ws.join_stack.push(item);
-            let pairs = &mut task.pairs;
-            let _ = drain(&mut task.ws, &mut |a, b| {
-                pairs.push((a, b));
-                ControlFlow::Continue(())
-            });
-            task.ends.push(pairs.len());
+            let _ = drain(&mut task.ws, &mut task.pairs);
+            task.ends.push(task.pairs.len());
         });
         let owner = &mut pws.owner;
         owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
