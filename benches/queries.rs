@@ -55,6 +55,12 @@
 //! smallest: that is accepted (and counted) when that key is also hit at
 //! exactly that `t`. Anything else panics.
 //!
+//! After the groups, `paired_ratios` times bevy_rtree and parry3d once more
+//! for each target, in alternating short blocks, so that both see the same
+//! state of a shared machine (`common/paired.rs`), and prints the ratio's
+//! median and range over the rounds; the table is also written to
+//! `target/criterion/queries_paired_ratios.md`.
+//!
 //! Reading the output: `time: [lo mid hi]` is criterion's estimate for one
 //! iteration (the middle number is the point estimate); compare contenders
 //! within a group, never across runs or machines. The median of each
@@ -1131,6 +1137,127 @@ fn bench_all(cr: &mut Criterion) {
     );
     bench_cross_join(cr, &contenders);
     bench_self_join(cr, &contenders);
+    paired_ratios(&contenders);
+}
+
+/// Where the machine drifts during a run, criterion's medians of two
+/// contenders, timed seconds apart, drift with it. For each target, this
+/// times bevy_rtree and parry3d in alternating short blocks
+/// (`common::paired`) and prints the ratio of neighbouring blocks: its
+/// median and its range over the rounds. Written to
+/// `target/criterion/queries_paired_ratios.md` as well.
+fn paired_ratios(c: &Contenders) {
+    const ROUNDS: usize = 41;
+    let mut rows: Vec<(&str, f64, common::paired::PairedRatio)> = Vec::new();
+
+    let (mut ws, mut next) = (QueryWorkspace::default(), cycle(&c.frustums));
+    let mut next_peer = cycle(&c.frustums);
+    let (mut out, mut list) = (vec![Vec::new()], Vec::new());
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        40,
+        || {
+            out[0].clear();
+            let frustum = std::slice::from_ref(next());
+            c.bevy
+                .tree
+                .visible_into(frustum, CullMode::Conservative, &mut ws, &mut out);
+        },
+        || {
+            list.clear();
+            parry_visible_into(&c.parry.bvh, &Planes::new(next_peer()), &mut list);
+        },
+    );
+    rows.push(("frustum cull", 0.25, ratio));
+
+    for (name, target, batches) in [
+        ("1,000 incoherent rays", 0.40, &c.incoherent),
+        ("1,000 coherent rays, standard eye", 1.0 / 3.0, &c.coherent),
+        (
+            "1,000 coherent rays, clear eye",
+            1.0 / 3.0,
+            &c.coherent_clear_eye,
+        ),
+    ] {
+        let (mut ws, mut next) = (QueryWorkspace::default(), cycle(batches));
+        let mut next_peer = cycle(batches);
+        let (mut out, mut hits) = (RayResults::default(), Vec::new());
+        let ratio = common::paired::paired_ratio(
+            ROUNDS,
+            8,
+            || {
+                c.bevy
+                    .tree
+                    .cast_rays(next(), RayMode::First, &mut ws, &mut out)
+            },
+            || {
+                hits.clear();
+                let rays = next_peer().iter();
+                hits.extend(rays.map(|ray| parry_first_hit(&c.parry.bvh, &c.boxes, ray)));
+            },
+        );
+        rows.push((name, target, ratio));
+    }
+
+    let d = TownScene::JOIN_DISTANCE;
+    let enemy_leaves = parry_leaves(&c.boxes, TownScene::ENEMIES);
+    let barrel_leaves = parry_leaves(&c.boxes, TownScene::BARRELS);
+    let (mut ws, mut out, mut peer_out) = (QueryWorkspace::default(), Vec::new(), Vec::new());
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        4,
+        || {
+            out.clear();
+            let (enemies, barrels) = (&c.bevy_enemies.tree, &c.bevy_barrels.tree);
+            let result =
+                enemies.cross_join_into(barrels, d, JoinMode::Euclidean, &mut ws, &mut out);
+            result.expect("valid distance");
+        },
+        || {
+            peer_out.clear();
+            let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves);
+            let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves);
+            parry_cross_join(&enemies, &barrels, &c.boxes, d, &mut peer_out);
+        },
+    );
+    rows.push(("cross join (parry3d builds its trees)", 0.125, ratio));
+
+    let d = SELF_JOIN_DISTANCE;
+    let (mut ws, mut peer_ws) = (QueryWorkspace::default(), BvhWorkspace::default());
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        3,
+        || {
+            out.clear();
+            let result = c
+                .bevy
+                .tree
+                .self_join_into(d, JoinMode::Euclidean, &mut ws, &mut out);
+            result.expect("valid distance");
+        },
+        || {
+            peer_out.clear();
+            parry_self_join(&c.parry.bvh, &mut peer_ws, &c.boxes, d, &mut peer_out);
+        },
+    );
+    rows.push(("self join", 0.40, ratio));
+
+    let mut table = format!(
+        "bevy_rtree time ÷ parry3d time, alternating blocks, {ROUNDS} rounds\n\n\
+         | query | bevy_rtree (µs) | parry3d (µs) | ratio, median | ratio, range | target |\n\
+         |---|---:|---:|---:|---:|---:|\n"
+    );
+    for (name, target, r) in &rows {
+        table += &format!(
+            "| {name} | {:.1} | {:.1} | {:.3} | {:.3}–{:.3} | ≤ {target:.3} |\n",
+            r.ours_us, r.peer_us, r.median, r.low, r.high
+        );
+    }
+    eprintln!("\n{table}");
+    let path = std::path::Path::new("target/criterion/queries_paired_ratios.md");
+    if let Err(e) = std::fs::write(path, &table) {
+        eprintln!("could not write {}: {e}", path.display());
+    }
 }
 
 criterion_group! {

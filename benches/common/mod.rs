@@ -4,6 +4,7 @@
 #![allow(dead_code, reason = "each bench uses the helpers it needs")]
 
 pub mod indexes;
+pub mod paired;
 
 use std::hint::black_box;
 use std::time::Duration;
