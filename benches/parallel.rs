@@ -25,6 +25,11 @@
 //!   (a frame's cameras and shadow views);
 //! - `parallel/cross_join`: enemies x barrels within 5 m, Euclidean;
 //! - `parallel/self_join`: all touching or overlapping pairs (d = 0).
+//!
+//! After the groups, `paired_speed_ups` times the single and the parallel
+//! call again in alternating short blocks (`common/paired.rs`) and prints
+//! the speed-up's median and range; the table is also written to
+//! `target/criterion/parallel_paired_speed_ups.md`.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -280,6 +285,116 @@ fn bench_all(cr: &mut Criterion) {
     bench_frustum(cr, &trees, "parallel/frustum", &inputs.frustums[..1]);
     bench_frustum(cr, &trees, "parallel/frustum_4_views", &inputs.frustums);
     bench_joins(cr, &trees);
+    paired_speed_ups(&trees, &inputs);
+}
+
+/// The speed-ups again, with the single and the parallel call timed in
+/// alternating short blocks (`common/paired.rs`), so that both see the same
+/// state of the shared machine; criterion times them seconds apart. Prints
+/// the median speed-up and its range over the rounds, and writes the table
+/// to `target/criterion/parallel_paired_speed_ups.md`.
+fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
+    const ROUNDS: usize = 31;
+    let mut rows = Vec::new();
+    let mut ws = QueryWorkspace::default();
+    let mut pws = ParallelWorkspace::default();
+    let (mut single, mut parallel) = (RayResults::default(), RayResults::default());
+    for (name, rays, per_block) in [
+        ("1,000 incoherent rays", &inputs.incoherent, 10),
+        ("4,000 incoherent rays", &inputs.incoherent_4000, 4),
+        (
+            "1,000 coherent rays, clear eye",
+            &inputs.coherent_clear_eye,
+            10,
+        ),
+    ] {
+        let ratio = common::paired::paired_ratio(
+            ROUNDS,
+            per_block,
+            || {
+                trees
+                    .all
+                    .cast_rays(rays, RayMode::First, &mut ws, &mut single)
+            },
+            || {
+                let all = &trees.all;
+                all.par_cast_rays(rays, RayMode::First, &mut pws, &mut parallel);
+            },
+        );
+        rows.push((name, ratio));
+    }
+    let mode = CullMode::Conservative;
+    let views = &inputs.frustums;
+    let (mut single, mut parallel) = (vec![Vec::new(); views.len()], vec![Vec::new(); views.len()]);
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        10,
+        || {
+            single.iter_mut().for_each(Vec::clear);
+            trees.all.visible_into(views, mode, &mut ws, &mut single);
+        },
+        || {
+            parallel.iter_mut().for_each(Vec::clear);
+            trees
+                .all
+                .par_visible_into(views, mode, &mut pws, &mut parallel);
+        },
+    );
+    rows.push(("frustum cull, four views", ratio));
+    let (d, mode) = (TownScene::JOIN_DISTANCE, JoinMode::Euclidean);
+    let (enemies, barrels) = (&trees.enemies, &trees.barrels);
+    let (mut single, mut parallel) = (Vec::new(), Vec::new());
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        20,
+        || {
+            single.clear();
+            let result = enemies.cross_join_into(barrels, d, mode, &mut ws, &mut single);
+            result.expect("valid distance");
+        },
+        || {
+            parallel.clear();
+            let result = enemies.par_cross_join_into(barrels, d, mode, &mut pws, &mut parallel);
+            result.expect("valid distance");
+        },
+    );
+    rows.push(("cross join", ratio));
+    let ratio = common::paired::paired_ratio(
+        ROUNDS,
+        3,
+        || {
+            single.clear();
+            let result = trees.all.self_join_into(0.0, mode, &mut ws, &mut single);
+            result.expect("valid distance");
+        },
+        || {
+            parallel.clear();
+            let result = trees
+                .all
+                .par_self_join_into(0.0, mode, &mut pws, &mut parallel);
+            result.expect("valid distance");
+        },
+    );
+    rows.push(("self join", ratio));
+
+    // The paired ratio is single ÷ parallel here: the speed-up.
+    let mut table = format!(
+        "speed-up on the pool = one thread's time ÷ the `par_` call's, alternating blocks, \
+         {ROUNDS} rounds\n\n\
+         | query | one thread (µs) | `par_` (µs) | speed-up, median | speed-up, range |\n\
+         |---|---:|---:|---:|---:|\n"
+    );
+    for (name, r) in &rows {
+        table += &format!(
+            "| {name} | {:.1} | {:.1} | {:.2} | {:.2}–{:.2} |\n",
+            r.ours_us, r.peer_us, r.median, r.low, r.high
+        );
+    }
+    eprintln!("\n{table}");
+    let path = std::path::Path::new("target/criterion/parallel_paired_speed_ups.md");
+    if let Err(e) = std::fs::write(path, &table) {
+        eprintln!("could not write {}: {e}", path.display());
+    }
 }
 
 criterion_group! {
