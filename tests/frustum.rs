@@ -478,7 +478,14 @@ proptest! {
         yaw in 0.0f32..std::f32::consts::TAU,
         pitch in -1.5f32..1.5,
         roll in -1.0f32..1.0,
-        length in prop_oneof![0.5f32..2.0, 1e-3f32..1e-2, 1e2f32..1e3],
+        length in prop_oneof![
+            0.5f32..2.0,
+            1e-3f32..1e-2,
+            1e2f32..1e3,
+            // Where the squared length leaves `f32`'s normal range.
+            1e-30f32..1e-20,
+            1e20f32..1e30,
+        ],
     ) {
         let unit = Quat::from_euler(EulerRot::YXZ, yaw, pitch, roll);
         let scaled = Quat::from_vec4(glam::Vec4::from(unit) * length);

@@ -48,7 +48,7 @@ impl fmt::Display for SpatialError {
                 "invalid ray: non-finite origin, zero direction or bad max_t"
             }
             SpatialError::InvalidFrustum => {
-                "invalid frustum: NaN plane, zero normal or camera parameter out of range"
+                "invalid frustum: NaN plane, zero normal, non-finite eye or camera parameter out of range"
             }
             SpatialError::InvalidDistance => "invalid distance: must be finite and >= 0",
             SpatialError::InvalidCount => "invalid count: must be at least 1",

@@ -125,10 +125,15 @@ impl Frustum {
         }
         // A quaternion of length s rotates and scales by s²: unnormalized,
         // it would move the near and far planes to near / s² and far / s².
-        let Some(unit) = glam::Vec4::from(rotation).try_normalize() else {
+        // Scaled by its largest component first, so that the squared length
+        // of a tiny or huge (but finite, nonzero) quaternion neither
+        // underflows nor overflows `f32`.
+        let raw = glam::Vec4::from(rotation);
+        let largest = raw.abs().max_element();
+        if !(largest.is_finite() && largest > 0.0) {
             return Err(SpatialError::InvalidFrustum);
-        };
-        let rotation = Quat::from_vec4(unit);
+        }
+        let rotation = Quat::from_vec4((raw / largest).normalize());
         let forward = rotation * Vec3::NEG_Z;
         let up = rotation * Vec3::Y;
         let right = rotation * Vec3::X;
