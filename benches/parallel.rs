@@ -312,13 +312,14 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
             ROUNDS,
             per_block,
             || {
-                trees
-                    .all
-                    .cast_rays(rays, RayMode::First, &mut ws, &mut single)
+                let all = &trees.all;
+                all.cast_rays(rays, RayMode::First, &mut ws, &mut single);
+                single.len()
             },
             || {
                 let all = &trees.all;
                 all.par_cast_rays(rays, RayMode::First, &mut pws, &mut parallel);
+                parallel.len()
             },
         );
         rows.push((name, ratio));
@@ -332,12 +333,14 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
         || {
             single.iter_mut().for_each(Vec::clear);
             trees.all.visible_into(views, mode, &mut ws, &mut single);
+            single.iter().map(Vec::len).sum::<usize>()
         },
         || {
             parallel.iter_mut().for_each(Vec::clear);
             trees
                 .all
                 .par_visible_into(views, mode, &mut pws, &mut parallel);
+            parallel.iter().map(Vec::len).sum::<usize>()
         },
     );
     rows.push(("frustum cull, four views", ratio));
@@ -351,11 +354,13 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
             single.clear();
             let result = enemies.cross_join_into(barrels, d, mode, &mut ws, &mut single);
             result.expect("valid distance");
+            single.len()
         },
         || {
             parallel.clear();
             let result = enemies.par_cross_join_into(barrels, d, mode, &mut pws, &mut parallel);
             result.expect("valid distance");
+            parallel.len()
         },
     );
     rows.push(("cross join", ratio));
@@ -366,6 +371,7 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
             single.clear();
             let result = trees.all.self_join_into(0.0, mode, &mut ws, &mut single);
             result.expect("valid distance");
+            single.len()
         },
         || {
             parallel.clear();
@@ -373,6 +379,7 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
                 .all
                 .par_self_join_into(0.0, mode, &mut pws, &mut parallel);
             result.expect("valid distance");
+            parallel.len()
         },
     );
     rows.push(("self join", ratio));
@@ -387,7 +394,7 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
     for (name, r) in &rows {
         table += &format!(
             "| {name} | {:.1} | {:.1} | {:.2} | {:.2}–{:.2} |\n",
-            r.ours_us, r.peer_us, r.median, r.low, r.high
+            r.a_us, r.b_us, r.median, r.low, r.high
         );
     }
     eprintln!("\n{table}");

@@ -1,76 +1,83 @@
 //! Ratios of two contenders timed in alternating blocks.
 //!
 //! Criterion times one contender for a few seconds, then the next, and on a
-//! shared machine the speed of the whole machine drifts between the two:
-//! in five runs of the queries bench on unchanged code, parry3d's self join
-//! took 5.64 to 6.57 ms. Here the two run in turn, a short block of
+//! shared machine the speed of the whole machine drifts between the two
+//! (see docs/performance.md). Here the two run in turn, a short block of
 //! iterations each, so that both see the same machine, and each round's
 //! ratio compares neighbours in time. The order within a round alternates,
 //! so neither always runs on the caches the other left.
 
-use std::time::Instant;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
 
 /// Each block starts with untimed iterations, at least this many and for
-/// at least [`MIN_WARM_UP`]: long enough to run through a cycle of inputs
-/// (the frustum group's 60 camera yaws) and bring their nodes back into
-/// cache.
+/// at least [`MIN_WARM_UP`], so that the contender's data is back in cache
+/// after the other contender's block.
 const MIN_WARM_UP_ITERATIONS: usize = 2;
 /// See [`MIN_WARM_UP_ITERATIONS`].
-const MIN_WARM_UP: std::time::Duration = std::time::Duration::from_millis(3);
+const MIN_WARM_UP: Duration = Duration::from_millis(3);
 
-/// The ratio `ours ÷ peer` over all rounds: the median and the range.
+/// The ratio `a ÷ b` of two contenders' times over all rounds.
 #[derive(Clone, Copy, Debug)]
 pub struct PairedRatio {
+    /// The median over the rounds of each round's ratio of block medians.
     pub median: f64,
+    /// The smallest round ratio.
     pub low: f64,
+    /// The largest round ratio.
     pub high: f64,
-    /// Medians of each side's per-iteration times over all rounds, in µs.
-    pub ours_us: f64,
-    pub peer_us: f64,
+    /// The median of `a`'s block medians, in µs per iteration.
+    pub a_us: f64,
+    /// The median of `b`'s block medians, in µs per iteration.
+    pub b_us: f64,
 }
 
-/// Times `ours` and `peer` in `rounds` rounds of `per_block` iterations
-/// each (after untimed ones, see [`MIN_WARM_UP_ITERATIONS`]), alternating which goes
-/// first, and returns the ratios of the two blocks' median iteration times.
-pub fn paired_ratio(
+/// Times `a` and `b` in `rounds` rounds of `per_block` iterations each
+/// (after untimed ones, see [`MIN_WARM_UP_ITERATIONS`]), alternating which
+/// goes first, and returns the ratios `a ÷ b` of the two blocks' median
+/// iteration times. Each iteration's result goes through `black_box`, as
+/// criterion's does. Inputs that cycle should cycle within an iteration, or
+/// `per_block` should hold whole cycles, so that both blocks of a round
+/// time the same inputs.
+pub fn paired_ratio<A, B>(
     rounds: usize,
     per_block: usize,
-    mut ours: impl FnMut(),
-    mut peer: impl FnMut(),
+    mut a: impl FnMut() -> A,
+    mut b: impl FnMut() -> B,
 ) -> PairedRatio {
-    let block = |f: &mut dyn FnMut()| {
+    fn block<T>(per_block: usize, f: &mut dyn FnMut() -> T) -> f64 {
         // Untimed first, as criterion warms up: the other contender's block
         // has just filled the caches with its own data.
         let warm_up = Instant::now();
         let mut warmed = 0;
         while warmed < MIN_WARM_UP_ITERATIONS || warm_up.elapsed() < MIN_WARM_UP {
-            f();
+            black_box(f());
             warmed += 1;
         }
         let mut times: Vec<f64> = (0..per_block)
             .map(|_| {
                 let start = Instant::now();
-                f();
+                black_box(f());
                 start.elapsed().as_secs_f64() * 1e6
             })
             .collect();
         median(&mut times)
-    };
+    }
     // One untimed round, so that both have run before the first timed one.
-    block(&mut ours);
-    block(&mut peer);
-    let (mut ratios, mut ours_us, mut peer_us) = (Vec::new(), Vec::new(), Vec::new());
+    block(per_block, &mut a);
+    block(per_block, &mut b);
+    let (mut ratios, mut a_us, mut b_us) = (Vec::new(), Vec::new(), Vec::new());
     for round in 0..rounds {
-        let (a, b) = if round % 2 == 0 {
-            let a = block(&mut ours);
-            (a, block(&mut peer))
+        let (ta, tb) = if round % 2 == 0 {
+            let ta = block(per_block, &mut a);
+            (ta, block(per_block, &mut b))
         } else {
-            let b = block(&mut peer);
-            (block(&mut ours), b)
+            let tb = block(per_block, &mut b);
+            (block(per_block, &mut a), tb)
         };
-        ratios.push(a / b);
-        ours_us.push(a);
-        peer_us.push(b);
+        ratios.push(ta / tb);
+        a_us.push(ta);
+        b_us.push(tb);
     }
     let low = ratios.iter().copied().fold(f64::INFINITY, f64::min);
     let high = ratios.iter().copied().fold(0.0, f64::max);
@@ -78,8 +85,8 @@ pub fn paired_ratio(
         median: median(&mut ratios),
         low,
         high,
-        ours_us: median(&mut ours_us),
-        peer_us: median(&mut peer_us),
+        a_us: median(&mut a_us),
+        b_us: median(&mut b_us),
     }
 }
 

@@ -573,7 +573,10 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     /// The split shared by both joins, from the root pair `start`: `step`
     /// expands one pair while the split runs breadth first (on the
     /// four-lane test: a few dozen pairs, which every lane test expands
-    /// alike), `drain` runs a task's stack of pairs to the end.
+    /// alike), `drain` runs a task's stack of pairs to the end and appends
+    /// the entry pairs it finds to the task's list. `step` takes its
+    /// visitor as `dyn` (it runs on a few dozen pairs and reports none);
+    /// `drain` calls its own, concrete one once per reported pair.
     #[allow(clippy::too_many_arguments)]
     fn par_join<Step, Drain>(
         &self,

@@ -4,8 +4,9 @@
 //! the batch is tested against a node's lanes at once, the rays that hit a
 //! child are gathered into that child's run, and the recursion continues
 //! with that run only, children in the node's precomputed order along the
-//! rays' dominant axis. A batch of at least [`MIN_RAYS_TO_BATCH`] rays is
-//! first sorted by dominant direction (axis and sign), and each direction
+//! rays' dominant axis. A batch with at least [`MIN_RAYS_TO_BATCH`] rays
+//! left to walk (valid, and not answered at a shared origin) is first
+//! sorted by dominant direction (axis and sign), and each direction
 //! goes as a batch of its own, so that order is near to far for all its
 //! rays; a smaller batch walks ray by ray in the caller's order. A
 //! direction's group or a run smaller than [`MIN_RAYS_TO_BATCH`] goes on
@@ -294,10 +295,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             // No direction's group can reach the size that is batched, so
             // every ray walks alone and grouping would only reorder them.
             // In the caller's order (a camera's rays in pixel order),
-            // neighbouring rays follow each other through the same nodes:
+            // neighbouring rays follow each other through the same nodes.
             // 1,000 rays from the clear eye took 0.173–0.181 ms against
             // 0.180–0.184 ms grouped (a probe, four alternating runs of
-            // each build); incoherent rays did not change.
+            // each build: within the noise), incoherent rays the same.
             self.walk_one_by_one(self.root(), &active, mode, ws);
         } else {
             let groups = group_by_direction(&ws.rays.tests, &mut active, &mut ws.rays.grouped);
