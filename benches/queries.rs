@@ -534,6 +534,20 @@ fn parry_within(a: &BvhNode, b: &BvhNode, d: f32) -> bool {
     reach.min.cmple(bmax).all() && bmin.cmple(reach.max).all()
 }
 
+/// The cross join as its target counts parry3d: build both `Bvh`s from
+/// their leaves (binned), then join them.
+fn parry_build_and_cross_join(
+    enemy_leaves: &[ParryAabb],
+    barrel_leaves: &[ParryAabb],
+    boxes: &[Aabb],
+    d: f32,
+    out: &mut Vec<(u32, u32)>,
+) {
+    let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, enemy_leaves);
+    let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, barrel_leaves);
+    parry_cross_join(&enemies, &barrels, boxes, d, out);
+}
+
 fn parry_cross_join(
     enemies: &Bvh,
     barrels: &Bvh,
@@ -896,11 +910,7 @@ fn check(c: &Contenders) {
         parry_leaves(boxes, TownScene::ENEMIES),
         parry_leaves(boxes, TownScene::BARRELS),
     );
-    let built = (
-        Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves),
-        Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves),
-    );
-    parry_cross_join(&built.0, &built.1, boxes, d, &mut got);
+    parry_build_and_cross_join(&enemy_leaves, &barrel_leaves, boxes, d, &mut got);
     assert_same("parry3d_with_build", what, &sorted(got), &want);
     let mut got = Vec::new();
     parry_cross_join(
@@ -1055,9 +1065,7 @@ fn bench_cross_join(cr: &mut Criterion, c: &Contenders) {
     let enemy_leaves = parry_leaves(&c.boxes, TownScene::ENEMIES);
     let barrel_leaves = parry_leaves(&c.boxes, TownScene::BARRELS);
     bench_list(&mut group, "parry3d_with_build", |out| {
-        let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves);
-        let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves);
-        parry_cross_join(&enemies, &barrels, &c.boxes, d, out);
+        parry_build_and_cross_join(&enemy_leaves, &barrel_leaves, &c.boxes, d, out);
     });
     bench_list(&mut group, "parry3d_maintained", |out| {
         let (enemies, barrels) = (&c.parry_enemies.bvh, &c.parry_barrels.bvh);
@@ -1238,9 +1246,8 @@ fn paired_ratios(c: &Contenders) {
         },
         || {
             peer_out.clear();
-            let enemies = Bvh::from_leaves(BvhBuildStrategy::Binned, &enemy_leaves);
-            let barrels = Bvh::from_leaves(BvhBuildStrategy::Binned, &barrel_leaves);
-            parry_cross_join(&enemies, &barrels, &c.boxes, d, &mut peer_out);
+            let (enemies, barrels) = (&enemy_leaves, &barrel_leaves);
+            parry_build_and_cross_join(enemies, barrels, &c.boxes, d, &mut peer_out);
             peer_out.len()
         },
     );
