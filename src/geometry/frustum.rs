@@ -34,6 +34,49 @@ impl HalfSpace {
         self.is_inactive()
             || (self.normal.is_finite() && self.normal != Vec3::ZERO && self.offset.is_finite())
     }
+
+    /// The same half-space with its normal and offset multiplied by the
+    /// power of two that brings the normal's largest component into
+    /// `(0.5, 1]` (the offset given in `f64`, so that re-basing it on an eye
+    /// cannot overflow first).
+    ///
+    /// Scaling by a power of two is exact, so every plane value the culling
+    /// test computes is exactly scaled too and no answer changes; but with
+    /// normals of that size the products `n·(p - eye)` of any point of the
+    /// world can neither overflow (a normal of 1e30) nor lose their
+    /// precision in subnormals (a normal of 1e-40). An offset so large that
+    /// it overflows in `f32` belongs to a plane that no point within
+    /// [`MAX_COORD`](crate::MAX_COORD) of the eye can reach: it never culls
+    /// (inactive) or culls everything (`-f32::MAX`). A normal that is zero,
+    /// or a normal or offset that is not finite, is left for validation to
+    /// refuse.
+    fn normalized(normal: Vec3, offset: f64) -> HalfSpace {
+        let largest = normal.abs().max_element();
+        if !(largest.is_finite() && largest > 0.0 && offset.is_finite()) {
+            return HalfSpace {
+                normal,
+                offset: offset as f32,
+            };
+        }
+        // 2^-e with e the exponent that puts `largest` in (0.5, 1].
+        let exponent = (largest as f64).log2().ceil() as i32;
+        let mut scale = 2f64.powi(-exponent);
+        if largest as f64 * scale <= 0.5 {
+            scale *= 2.0;
+        }
+        let scaled = offset * scale;
+        let offset = if scaled > f32::MAX as f64 {
+            return HalfSpace::INACTIVE;
+        } else if scaled < -(f32::MAX as f64) {
+            -f32::MAX
+        } else {
+            scaled as f32
+        };
+        HalfSpace {
+            normal: (normal.as_dvec3() * scale).as_vec3(),
+            offset,
+        }
+    }
 }
 
 /// A convex view volume: up to six half-spaces evaluated relative to an eye.
@@ -62,8 +105,41 @@ pub struct Frustum {
 impl Frustum {
     /// A checked frustum from an eye and six eye-relative half-spaces (use
     /// [`HalfSpace::INACTIVE`] for planes you do not need).
+    ///
+    /// The eye must be a valid point of the world (finite, every coordinate
+    /// within [`MAX_COORD`](crate::MAX_COORD)). Each plane is stored scaled
+    /// by a power of two so that its normal's largest component lies in
+    /// `(0.5, 1]`: the same half-space, whose test can neither overflow nor
+    /// lose precision in subnormals for any box of the world (unit normals,
+    /// as [`Frustum::perspective`] makes, are kept as they are).
+    ///
+    /// ```
+    /// use bevy_rtree::{Frustum, HalfSpace};
+    /// use glam::Vec3;
+    ///
+    /// let huge = HalfSpace { normal: Vec3::new(0.0, 0.0, -4e30), offset: 8e30 };
+    /// let i = HalfSpace::INACTIVE;
+    /// let frustum = Frustum::new(Vec3::ZERO, [huge, i, i, i, i, i])?;
+    /// let stored = frustum.planes()[0];
+    /// assert!(stored.normal.z > -1.0 && stored.normal.z <= -0.5);
+    /// assert_eq!(stored.offset / -stored.normal.z, 2.0); // still z < 2
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
     pub fn new(eye: Vec3, planes: [HalfSpace; 6]) -> Result<Frustum, SpatialError> {
-        if !eye.is_finite() || !planes.iter().all(HalfSpace::is_valid) {
+        let planes = planes.map(|h| {
+            if h.is_inactive() {
+                h
+            } else {
+                HalfSpace::normalized(h.normal, h.offset as f64)
+            }
+        });
+        Frustum::checked(eye, planes)
+    }
+
+    /// Checks the eye and the (already normalized) planes.
+    fn checked(eye: Vec3, planes: [HalfSpace; 6]) -> Result<Frustum, SpatialError> {
+        let eye_ok = eye.is_finite() && eye.abs().max_element() <= crate::MAX_COORD;
+        if !eye_ok || !planes.iter().all(HalfSpace::is_valid) {
             return Err(SpatialError::InvalidFrustum);
         }
         Ok(Frustum { eye, planes })
@@ -77,12 +153,9 @@ impl Frustum {
                 return HalfSpace::INACTIVE;
             }
             let offset = d as f64 + normal.as_dvec3().dot(eye.as_dvec3());
-            HalfSpace {
-                normal,
-                offset: offset as f32,
-            }
+            HalfSpace::normalized(normal, offset)
         });
-        Frustum::new(eye, rebased)
+        Frustum::checked(eye, rebased)
     }
 
     /// A symmetric perspective frustum: camera at `eye`, oriented by
@@ -174,7 +247,7 @@ impl Frustum {
         self.eye
     }
 
-    /// The six eye-relative half-spaces.
+    /// The six eye-relative half-spaces, as stored (see [`Frustum::new`]).
     pub fn planes(&self) -> &[HalfSpace; 6] {
         &self.planes
     }

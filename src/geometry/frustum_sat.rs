@@ -233,56 +233,69 @@ fn common_perpendicular(planes: &[(DVec3, f64)]) -> Option<DVec3> {
     (!spans_space).then_some(line)
 }
 
-/// Whether `{x : n·x + d > 0 for every plane}` has an interior: the largest
-/// ball inside all planes (a 4-variable linear programme, maximise the
-/// radius `t`) has a positive radius. Solved by trying every vertex of the
-/// programme, which is cheap for at most six planes plus bounds.
+/// Whether `{x : n·x + d > 0 for every plane}` has an interior, decided by
+/// finding a point that is provably strictly inside every plane.
+///
+/// Candidates are the vertices of a linear programme that looks for the
+/// largest ball inside all planes (maximise its radius `t`) within a cube
+/// of half-width `R` around the eye, with `t <= R`: its best vertex is the
+/// centre of that ball. A candidate counts only when its value against
+/// every plane, evaluated in `f64`, exceeds that evaluation's rounding
+/// bound, so the answer "has an interior" is never a rounding artefact, at
+/// any distance: no threshold relative to the farthest plane (which made
+/// every frustum with a plane 1e9 m away "empty"). `R` grows from 1 m in
+/// steps of 10^4, so a volume far from the eye is reached, and a point near
+/// the eye is tried with coordinates small enough to certify a thin volume
+/// there. A volume thinner than about 1e-11 of its distance from the eye
+/// may be taken as empty (the conservative test in `f32` cannot resolve it
+/// either).
 fn has_interior(planes: &[(DVec3, f64)]) -> bool {
-    // Rows a·(x, t) <= b. Plane: -n̂·x + t <= d̂. Bounds keep it finite.
-    const R: f64 = 1e16;
+    const REACHES: [f64; 5] = [1.0, 1e4, 1e8, 1e12, 1e16];
+    // Rows a·(x, t) <= b. Plane: -n̂·x + t <= d̂.
     let mut rows: Vec<([f64; 4], f64)> = Vec::new();
     for (n, d) in planes {
         let len = n.length();
         rows.push(([-n.x / len, -n.y / len, -n.z / len, 1.0], d / len));
     }
-    for axis in 0..3 {
-        let mut a = [0.0; 4];
-        a[axis] = 1.0;
-        rows.push((a, R));
-        a[axis] = -1.0;
-        rows.push((a, R));
-    }
-    rows.push(([0.0, 0.0, 0.0, 1.0], 1.0));
-    let scale = planes
-        .iter()
-        .map(|(n, d)| d.abs() / n.length())
-        .fold(1.0, f64::max);
-    let mut best = f64::NEG_INFINITY;
-    let m = rows.len();
-    for i in 0..m {
-        for j in i + 1..m {
-            for k in j + 1..m {
-                for l in k + 1..m {
-                    let Some(x) = solve4([rows[i], rows[j], rows[k], rows[l]]) else {
-                        continue;
-                    };
-                    // Each row within a rounding of the terms it sums: a
-                    // vertex out at the bounds (a volume open along a line
-                    // that no axis follows) carries errors of its own size.
-                    // Leaning towards "has an interior" only keeps boxes.
-                    let feasible = rows.iter().all(|(a, b)| {
-                        let terms = (0..4).map(|k| (a[k] * x[k]).abs()).sum::<f64>();
-                        a[0] * x[0] + a[1] * x[1] + a[2] * x[2] + a[3] * x[3]
-                            <= b + 1e-9 * (b.abs() + scale + terms)
-                    });
-                    if feasible && x[3] > best {
-                        best = x[3];
+    let planes_rows = rows.len();
+    for reach in REACHES {
+        rows.truncate(planes_rows);
+        for axis in 0..3 {
+            let mut a = [0.0; 4];
+            a[axis] = 1.0;
+            rows.push((a, reach));
+            a[axis] = -1.0;
+            rows.push((a, reach));
+        }
+        rows.push(([0.0, 0.0, 0.0, 1.0], reach));
+        let m = rows.len();
+        for i in 0..m {
+            for j in i + 1..m {
+                for k in j + 1..m {
+                    for l in k + 1..m {
+                        let Some(x) = solve4([rows[i], rows[j], rows[k], rows[l]]) else {
+                            continue;
+                        };
+                        if x[3] > 0.0 && strictly_inside(planes, DVec3::new(x[0], x[1], x[2])) {
+                            return true;
+                        }
                     }
                 }
             }
         }
     }
-    best > 1e-9 * scale
+    false
+}
+
+/// Whether `point` is strictly inside every plane beyond doubt: each value
+/// `n·point + d`, evaluated in `f64`, exceeds the bound on its rounding
+/// error (four roundings of the terms' magnitudes, doubled for safety).
+fn strictly_inside(planes: &[(DVec3, f64)], point: DVec3) -> bool {
+    planes.iter().all(|(n, d)| {
+        let value = n.dot(point) + d;
+        let magnitude = (*n * point).abs().element_sum() + d.abs();
+        value > 8.0 * f64::EPSILON * magnitude
+    })
 }
 
 /// Solves the 4x4 system `a x = b` by Gaussian elimination with pivoting.
