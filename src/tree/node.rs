@@ -25,7 +25,8 @@ pub(crate) const FREE_LEVEL: u16 = u16::MAX;
 /// Child bounds are stored per axis (`min[axis][lane]`), so one query tests
 /// all `W` lanes with the same instructions and no branch per lane. Unused
 /// lanes hold the inverted box (`+inf` / `-inf`), which every predicate
-/// rejects, so lane loops never look at `len`.
+/// rejects for a bounded query; lane tests that may meet an unbounded
+/// query mask in the used lanes (`used_lanes`).
 ///
 /// In a leaf (`level == 0`) the lanes hold the entries' *exact* boxes and
 /// `child` holds proxy indices; every answer is decided there. In an internal
@@ -169,7 +170,13 @@ impl<const W: usize> Node<W> {
         }
     }
 
-    /// Bit `i` set iff lane `i`'s box overlaps `query` (closed boxes).
+    /// Bit `i` set iff lane `i` is used and its box overlaps `query`
+    /// (closed boxes).
+    ///
+    /// Unused lanes hold the inverted box, which no finite query overlaps;
+    /// a query unbounded on both sides of every axis (a join's reach at
+    /// `f32::MAX` rounds to one) would pass it, so the used lanes are
+    /// masked in as well.
     ///
     /// Four lanes at a time in `glam::Vec4` (glam's SIMD backend: SSE2 on
     /// x86-64, NEON on aarch64, plain floats where it has none): the six
@@ -188,7 +195,7 @@ impl<const W: usize> Node<W> {
         for first in (0..W).step_by(LANES_PER_TEST) {
             mask |= self.overlap_bits(&corners, first);
         }
-        mask
+        mask & self.used_lanes()
     }
 
     /// [`Node::overlap_mask`] restricted to `lanes`: only the groups of four
