@@ -21,6 +21,7 @@ pub(crate) mod node;
 mod optimize;
 mod prefetch;
 mod remove;
+mod repair_queue;
 mod settings;
 mod split;
 mod stats;
@@ -37,6 +38,7 @@ pub use validate::InvariantViolation;
 use crate::geometry::{Aabb, SpatialError};
 use handle::{Proxy, Stamp};
 use node::{FREE_LEVEL, NIL, Node};
+use repair_queue::RepairQueue;
 
 /// The smallest node width the tree supports.
 const MIN_WIDTH: usize = 4;
@@ -99,7 +101,7 @@ pub struct RTree<K, const W: usize = 16> {
     len: usize,
     settings: TreeSettings,
     /// Level-1 nodes whose churn crossed the threshold, for `optimize`.
-    dirty: Vec<u32>,
+    dirty: RepairQueue,
     maintenance: MaintenanceStats,
 }
 
@@ -150,7 +152,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             free_proxies: Vec::new(),
             len: 0,
             settings,
-            dirty: Vec::new(),
+            dirty: RepairQueue::default(),
             maintenance: MaintenanceStats::default(),
         })
     }
@@ -178,6 +180,30 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Live nodes in the pool.
     pub fn node_count(&self) -> usize {
         self.nodes.len() - self.free_nodes.len()
+    }
+
+    /// Live nodes at `level` (0 for the leaves), a linear scan for
+    /// diagnostics. [`RTree::pending_repairs`] never exceeds the count at
+    /// level 1.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert_bulk((0..1000u32).map(|i| {
+    ///     let p = Vec3::new(i as f32, 0.0, 0.0);
+    ///     (i, Aabb::new(p, p + Vec3::ONE).unwrap())
+    /// }))?;
+    /// assert_eq!(tree.nodes_at_level(0), 1000 / 16 + 1);
+    /// assert_eq!(tree.nodes_at_level(tree.height() - 1), 1);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn nodes_at_level(&self, level: usize) -> usize {
+        self.nodes
+            .iter()
+            .filter(|n| n.level as usize == level)
+            .count()
     }
 
     /// The key and exact box of a live entry.
@@ -285,6 +311,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     fn free_node(&mut self, index: u32) {
+        self.dirty.remove(index);
         let node = &mut self.nodes[index as usize];
         *node = Node::empty(FREE_LEVEL, NIL);
         self.free_nodes.push(index);

@@ -6,7 +6,6 @@
 use smallvec::SmallVec;
 
 use super::bulk::{group_range, tile_partition};
-use super::node::FREE_LEVEL;
 use super::{Entry, RTree};
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
@@ -43,10 +42,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let mut done = 0;
         while done < budget {
             let Some(node) = self.dirty.pop() else { break };
-            let n = &self.nodes[node as usize];
-            if n.level == FREE_LEVEL || n.level != 1 {
-                continue;
-            }
+            debug_assert_eq!(
+                self.nodes[node as usize].level, 1,
+                "only live level-1 nodes queue"
+            );
             self.repack(node);
             done += 1;
         }

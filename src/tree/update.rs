@@ -196,7 +196,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let threshold = self.settings.repack_threshold(W);
         let churn = &mut self.churn[node as usize];
         *churn += 1;
-        if *churn == threshold {
+        if *churn >= threshold {
             self.dirty.push(node);
         }
     }

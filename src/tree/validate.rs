@@ -191,6 +191,17 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             );
         }
         ensure!(
+            self.dirty.is_consistent(),
+            "the repair queue's places disagree with its nodes"
+        );
+        for &queued in self.dirty.nodes() {
+            let node = self.nodes.get(queued as usize);
+            ensure!(
+                node.is_some_and(|n| n.level == 1),
+                "queued node {queued} is not a live level-1 node"
+            );
+        }
+        ensure!(
             live_nodes + self.free_nodes.len() == self.nodes.len(),
             "{live_nodes} live + {} free nodes != pool of {}",
             self.free_nodes.len(),
