@@ -57,7 +57,10 @@ impl Proxy {
 /// Stamps live in a dense array apart from the [`Proxy`] records, so that
 /// checking a frame's handles reads 4 bytes per handle: 400 KB for 100,000
 /// entries, which stays in cache, where the records would take 3.2 MB.
-/// Generations count modulo 2^31. A record's `leaf == NIL` says the same as
+/// Generations count to 2^31 - 1; a slot whose generation would wrap to 0
+/// is retired for good instead ([`Stamp::is_exhausted`]), so that a removed
+/// handle is refused for the life of the tree, however often slots are
+/// reused. A record's `leaf == NIL` says the same as
 /// a stamp that is not live, for code that walks the records;
 /// [`RTree::validate`](super::RTree::validate) checks that the two agree.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,6 +99,22 @@ impl Stamp {
     pub fn retired(self) -> Stamp {
         Stamp((self.generation().wrapping_add(1)) << 1)
     }
+
+    /// A free slot whose next entry takes the last generation, as after
+    /// `2^31 - 1` entries came and went (for tests that cannot wait for
+    /// them).
+    #[cfg(test)]
+    pub const LAST_FREE: Stamp = Stamp(u32::MAX - 1);
+
+    /// Whether this retired slot ran through every generation: its next
+    /// entry would get generation 0 again, which handles of its first
+    /// entry still carry, so it must never be reused. (Every slot's first
+    /// entry takes generation 0, so a free slot of generation 0 can only
+    /// have wrapped.)
+    #[inline]
+    pub fn is_exhausted(self) -> bool {
+        self.0 == 0
+    }
 }
 
 #[cfg(test)]
@@ -129,6 +148,7 @@ mod tests {
         let wrapped = last.retired();
         assert!(!wrapped.is_live());
         assert_eq!(wrapped.generation(), 0);
-        assert!(wrapped.revived().admits(handle(0)));
+        assert!(wrapped.is_exhausted(), "such a slot must not be reused");
+        assert!(!last.is_exhausted() && !Stamp(2).is_exhausted());
     }
 }

@@ -250,7 +250,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 *stamp = stamp.retired();
             }
         }
-        self.free_proxies = (0..self.proxies.len() as u32).rev().collect();
+        self.free_proxies = (0..self.proxies.len() as u32)
+            .rev()
+            .filter(|&slot| !self.stamps[slot as usize].is_exhausted())
+            .collect();
         self.nodes.clear();
         self.nodes.push(Node::empty(0, NIL));
         self.churn.clear();

@@ -29,7 +29,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.proxies[proxy as usize].leaf = NIL;
         let stamp = &mut self.stamps[proxy as usize];
         *stamp = stamp.retired();
-        self.free_proxies.push(proxy);
+        if !stamp.is_exhausted() {
+            self.free_proxies.push(proxy);
+        }
         self.len -= 1;
         self.maintenance.removals += 1;
         Ok(self.keys[proxy as usize])
@@ -114,5 +116,37 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.nodes[child as usize].parent = NIL;
             self.held_bounds[child as usize] = Aabb::EVERYWHERE;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::tree::handle::Stamp;
+
+    #[test]
+    fn a_slot_that_ran_through_every_generation_is_never_reused() {
+        let unit = Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap();
+        let mut tree = RTree::<u32>::new();
+        let first = tree.insert(0, unit).unwrap();
+        tree.remove(first).unwrap();
+        // The slot as 2^31 - 1 insert / remove cycles leave it.
+        tree.stamps[first.index as usize] = Stamp::LAST_FREE;
+        let last = tree.insert(1, unit).unwrap();
+        assert_eq!(last.index, first.index, "the free slot is reused once more");
+        tree.remove(last).unwrap();
+        let next = tree.insert(2, unit).unwrap();
+        assert_ne!(next.index, first.index, "the exhausted slot stays retired");
+        assert!(!tree.contains(first) && !tree.contains(last));
+        assert_eq!(tree.remove(first), Err(SpatialError::UnknownProxy));
+        assert_eq!(tree.len(), 1);
+        tree.validate().unwrap();
+        tree.clear();
+        let after_clear = tree.insert(3, unit).unwrap();
+        assert_ne!(after_clear.index, first.index, "clear() does not revive it");
+        assert!(!tree.contains(first));
+        tree.validate().unwrap();
     }
 }

@@ -175,10 +175,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             "{live_proxies} live handles but len() = {}",
             self.len
         );
+        let exhausted = self.stamps.iter().filter(|s| s.is_exhausted()).count();
         ensure!(
-            live_proxies + self.free_proxies.len() == self.proxies.len(),
-            "proxy free list and live proxies do not add up"
+            live_proxies + self.free_proxies.len() + exhausted == self.proxies.len(),
+            "proxy free list, live and exhausted proxies do not add up"
         );
+        for &free in &self.free_proxies {
+            let stamp = self.stamps.get(free as usize);
+            ensure!(
+                stamp.is_some_and(|s| !s.is_live() && !s.is_exhausted()),
+                "free proxy slot {free} is live, exhausted or missing"
+            );
+        }
         for &free in &self.free_nodes {
             ensure!(
                 !seen[free as usize],
