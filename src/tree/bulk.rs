@@ -58,8 +58,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         Ok(ids)
     }
 
-    /// Rebuilds the whole tree by bulk loading from the entries' current boxes.
-    /// Handles stay valid; answers do not change.
+    /// Rebuilds the whole tree by bulk loading from the entries' current
+    /// boxes, as fresh as a new tree of the same boxes: every enlarged box
+    /// starts again from the exact box and the margin, without the stretch
+    /// of past moves. Handles stay valid; answers do not change.
     pub fn rebuild(&mut self) {
         let exact = self.collect_exact_boxes();
         self.rebuild_from(&exact);
@@ -79,17 +81,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .collect()
     }
 
-    /// Packs every live proxy (exact boxes from `exact`) into a new tree.
+    /// Packs every live proxy (exact boxes from `exact`) into a new tree,
+    /// with fresh enlarged boxes.
     fn rebuild_from(&mut self, exact: &[Aabb]) {
+        let settings = self.settings;
         let mut level_entries: Vec<Entry> = self
             .proxies
-            .iter()
+            .iter_mut()
             .enumerate()
             .filter(|(_, p)| p.is_live())
-            .map(|(i, p)| Entry {
-                lane_box: exact[i],
-                bound: p.fat,
-                child: i as u32,
+            .map(|(i, p)| {
+                p.fat = settings.fatten(&exact[i], glam::Vec3::ZERO);
+                Entry {
+                    lane_box: exact[i],
+                    bound: p.fat,
+                    child: i as u32,
+                }
             })
             .collect();
         self.nodes.clear();

@@ -17,6 +17,13 @@ use crate::geometry::{Aabb, MAX_COORD, SpatialError};
 /// query tests the exact box (SEMANTICS S2), so these settings trade update
 /// time against query work, never against correctness.
 ///
+/// The stretch cannot run away: a displacement longer than
+/// [`jump_limit`](Self::jump_limit) box sizes is a jump (a teleport, a
+/// respawn), not motion, and gets no stretch; and a stretch that the
+/// entry's motion no longer uses (it slowed down or stopped) shrinks back at
+/// its next move. [`RTree::rebuild`](super::RTree::rebuild) starts every
+/// entry afresh, without stretch.
+///
 /// ```
 /// use bevy_rtree::{RTree, TreeSettings};
 ///
@@ -44,6 +51,17 @@ pub struct TreeSettings {
     /// time again in a frame with a self join, and stretches a fast mover's
     /// box twice as far as 4 does.
     pub displacement_factor: f32,
+    /// The longest displacement that counts as motion, in box sizes (the
+    /// box's largest extent, or `margin` if that is larger). A longer move
+    /// is a jump: its enlarged box gets no stretch, so a teleport across
+    /// the world does not leave a box kilometres long behind for every
+    /// later small move to stay inside. Range `[0, 1e4]`.
+    ///
+    /// The default, `2`: a vehicle at 30 m/s at 60 Hz moves 0.5 m a frame,
+    /// one size of the standard scene's smallest boxes, so every mover of
+    /// that scene keeps its stretch; a respawn hundreds of metres away is
+    /// a jump for any box under a hundred metres.
+    pub jump_limit: f32,
     /// How much churn a level-1 node absorbs before
     /// [`RTree::optimize`](super::RTree::optimize) repacks it: restructuring
     /// moves in its subtree, as a fraction of the entries it can hold
@@ -72,6 +90,7 @@ impl Default for TreeSettings {
             margin: 0.1,
             margin_fraction: 0.0,
             displacement_factor: 4.0,
+            jump_limit: 2.0,
             repack_fraction: 0.25,
             split: SplitStrategy::RStar,
         }
@@ -85,6 +104,7 @@ impl TreeSettings {
         if in_range(self.margin, 1e4)
             && in_range(self.margin_fraction, 10.0)
             && in_range(self.displacement_factor, 100.0)
+            && in_range(self.jump_limit, 1e4)
             && self.repack_fraction.is_finite()
             && self.repack_fraction > 0.0
             && self.repack_fraction <= 16.0
@@ -110,13 +130,46 @@ impl TreeSettings {
     /// goes below `x`, and a valid `exact` lies within `±MAX_COORD`.
     #[inline]
     pub(crate) fn fatten(&self, exact: &Aabb, displacement: Vec3) -> Aabb {
-        let grow = Vec3::splat(self.margin) + exact.extent() * self.margin_fraction;
-        let ahead = displacement * self.displacement_factor;
+        let grow = self.grow(exact);
+        let ahead = self.stretch(exact, displacement);
         let limit = Vec3::splat(MAX_COORD);
         Aabb {
             min: (exact.min - grow + ahead.min(Vec3::ZERO)).max(-limit),
             max: (exact.max + grow + ahead.max(Vec3::ZERO)).min(limit),
         }
+    }
+
+    /// The enlargement on every side of `exact`, per axis.
+    #[inline]
+    fn grow(&self, exact: &Aabb) -> Vec3 {
+        Vec3::splat(self.margin) + exact.extent() * self.margin_fraction
+    }
+
+    /// How far the enlarged box reaches ahead of a move by `displacement`:
+    /// `displacement_factor` times it, or nothing for a jump (see
+    /// [`TreeSettings::jump_limit`]).
+    #[inline]
+    fn stretch(&self, exact: &Aabb, displacement: Vec3) -> Vec3 {
+        let size = exact.extent().max_element().max(self.margin);
+        if displacement.abs().max_element() > self.jump_limit * size {
+            Vec3::ZERO
+        } else {
+            displacement * self.displacement_factor
+        }
+    }
+
+    /// Whether the enlarged box `fat` reaches further around `exact` than
+    /// a move by `displacement` would ever stretch it: on some axis its
+    /// extent exceeds the exact box's, the enlargement on both sides and
+    /// twice this move's stretch. A box moving steadily through its
+    /// stretch never exceeds that (its stretch is one move's worth); one
+    /// that slowed down or stopped does, and gets its box refitted.
+    #[inline]
+    pub(crate) fn stretch_unused(&self, fat: &Aabb, exact: &Aabb, displacement: Vec3) -> bool {
+        let used =
+            exact.extent() + self.grow(exact) * 2.0 + self.stretch(exact, displacement).abs() * 2.0;
+        // The 1 % spares refits to rounding.
+        fat.extent().cmpgt(used * 1.01).any()
     }
 }
 
