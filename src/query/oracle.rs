@@ -70,8 +70,12 @@ impl<K: Copy + Ord> BruteForce<K> {
         &self.entries
     }
 
-    /// Sorted keys of entries whose closed box overlaps `query`.
+    /// Sorted keys of entries whose closed box overlaps `query`; an invalid
+    /// query box matches nothing, as in [`RTree::visit_overlapping`](crate::RTree::visit_overlapping).
     pub fn overlapping(&self, query: &Aabb) -> Vec<K> {
+        if !query.is_valid() {
+            return Vec::new();
+        }
         let mut out: Vec<K> = self
             .entries
             .iter()
@@ -82,7 +86,8 @@ impl<K: Copy + Ord> BruteForce<K> {
         out
     }
 
-    /// Sorted keys of entries whose closed box contains `point`.
+    /// Sorted keys of entries whose closed box contains `point` (none for a
+    /// point that is not a valid point box).
     pub fn containing_point(&self, point: Vec3) -> Vec<K> {
         self.overlapping(&Aabb {
             min: point,
