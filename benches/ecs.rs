@@ -102,7 +102,7 @@ struct CoreTown {
     cull_ws: QueryWorkspace,
     ray_ws: QueryWorkspace,
     join_ws: QueryWorkspace,
-    visible: [Vec<u32>; 1],
+    visible: Vec<Vec<u32>>,
     hits: RayResults<u32>,
     pairs: Vec<(u32, u32)>,
     /// A frame's moves per tree (all, enemies, barrels), for `update_batch`.
@@ -144,7 +144,7 @@ impl CoreTown {
             cull_ws: QueryWorkspace::default(),
             ray_ws: QueryWorkspace::default(),
             join_ws: QueryWorkspace::default(),
-            visible: [Vec::new()],
+            visible: vec![Vec::new()],
             hits: RayResults::default(),
             pairs: Vec::new(),
             moves: Default::default(),
@@ -559,7 +559,7 @@ fn core_phases(core: &mut CoreTown) -> ([Duration; 5], [Duration; 3]) {
 struct PluginTreeCalls {
     ws: QueryWorkspace,
     rays: Vec<Ray>,
-    visible: [Vec<Entity>; 1],
+    visible: Vec<Vec<Entity>>,
     hits: RayResults<Entity>,
     pairs: Vec<(Entity, Entity)>,
 }

@@ -796,14 +796,14 @@ fn check(c: &Contenders) {
         let what = format!("frustum of frame {}", f + 1);
         let want = oracle.visible(frustum, CullMode::Conservative);
         visible += want.len();
-        let mut out = [Vec::new()];
+        let mut out = vec![Vec::new()];
         c.bevy.tree.visible_into(
             std::slice::from_ref(frustum),
             CullMode::Conservative,
             &mut ws,
             &mut out,
         );
-        let [got] = out;
+        let got = out.pop().unwrap_or_default();
         assert_same("bevy_rtree", &what, &sorted(got), &want);
         let planes = Planes::new(frustum);
         let mut got = Vec::new();
@@ -997,7 +997,7 @@ fn cycle<'a, T>(inputs: &'a [T]) -> impl FnMut() -> &'a T {
 fn bench_frustum(cr: &mut Criterion, c: &Contenders) {
     let mut group = cr.benchmark_group("queries/frustum");
     let (mut ws, mut next) = (QueryWorkspace::default(), cycle(&c.frustums));
-    bench_answers(&mut group, "bevy_rtree", [Vec::new()], |out| {
+    bench_answers(&mut group, "bevy_rtree", vec![Vec::new()], |out| {
         out[0].clear();
         let frustum = std::slice::from_ref(next());
         let mode = CullMode::Conservative;

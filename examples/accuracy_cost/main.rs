@@ -160,12 +160,11 @@ impl<const W: usize> Kept for Index<W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<u32>,
     ) {
-        self.tree.visible_into(
-            std::slice::from_ref(frustum),
-            mode,
-            ws,
-            std::slice::from_mut(out),
-        );
+        self.tree
+            .visit_visible(std::slice::from_ref(frustum), mode, ws, |_, key, _| {
+                out.push(key);
+                std::ops::ControlFlow::Continue(())
+            });
     }
 
     fn cast_rays_first(&self, rays: &[Ray], ws: &mut QueryWorkspace, out: &mut RayResults<u32>) {

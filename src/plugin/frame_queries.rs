@@ -35,7 +35,7 @@ pub(crate) fn visible_into(
     frustums: &[Frustum],
     mode: CullMode,
     ws: &mut FrameWorkspace,
-    out: &mut [Vec<Entity>],
+    out: &mut Vec<Vec<Entity>>,
 ) {
     #[cfg(feature = "parallel")]
     tree.par_visible_into(frustums, mode, ws, out);

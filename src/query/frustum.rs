@@ -88,17 +88,33 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
-    /// Appends the keys visible in each frustum to the matching list of `out`
-    /// (`out.len()` must equal `frustums.len()`; lists are not cleared), in
-    /// tree order. One traversal per eight frustums.
+    /// Appends the keys visible in each frustum to the matching list of `out`,
+    /// in tree order. One traversal per eight frustums.
+    ///
+    /// `out` is first made one list per frustum: lists beyond the last
+    /// frustum are dropped and missing ones added empty; the lists kept are
+    /// appended to, not cleared.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, CullMode, Frustum, QueryWorkspace, RTree};
+    /// use glam::{Quat, Vec3};
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(7u32, Aabb::new(Vec3::new(-1.0, -1.0, -6.0), Vec3::new(1.0, 1.0, -4.0))?)?;
+    /// let view = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 1.0, 0.1, 100.0)?;
+    /// let mut out = Vec::new();
+    /// tree.visible_into(&[view, view], CullMode::Conservative, &mut QueryWorkspace::default(), &mut out);
+    /// assert_eq!(out, [vec![7], vec![7]]);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
     pub fn visible_into(
         &self,
         frustums: &[Frustum],
         mode: CullMode,
         ws: &mut QueryWorkspace,
-        out: &mut [Vec<K>],
+        out: &mut Vec<Vec<K>>,
     ) {
-        assert_eq!(frustums.len(), out.len(), "one output list per frustum");
+        out.resize_with(frustums.len(), Vec::new);
         self.visit_visible(frustums, mode, ws, |view, key, _| {
             out[view].push(key);
             ControlFlow::Continue(())
@@ -107,14 +123,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// The keys visible in one frustum, sorted.
     pub fn visible(&self, frustum: &Frustum, mode: CullMode) -> Vec<K> {
-        let mut out = [Vec::new()];
+        let mut out = Vec::with_capacity(1);
         self.visible_into(
             std::slice::from_ref(frustum),
             mode,
             &mut QueryWorkspace::default(),
             &mut out,
         );
-        let [mut keys] = out;
+        let mut keys = out.pop().unwrap_or_default();
         keys.sort_unstable();
         keys
     }

@@ -417,7 +417,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     }
 
     /// [`RTree::visible_into`] on the task pool. Each list of `out` gets the
-    /// same keys in the same order as from the single-threaded call. Small
+    /// same keys in the same order as from the single-threaded call (`out`
+    /// is made one list per frustum first, as there). Small
     /// culls run on the calling thread (see
     /// [`ParallelWorkspace::with_min_view_entries_to_split`]).
     pub fn par_visible_into(
@@ -425,9 +426,9 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         frustums: &[Frustum],
         mode: CullMode,
         pws: &mut ParallelWorkspace<K>,
-        out: &mut [Vec<K>],
+        out: &mut Vec<Vec<K>>,
     ) {
-        assert_eq!(frustums.len(), out.len(), "one output list per frustum");
+        out.resize_with(frustums.len(), Vec::new);
         let view_entries = self.len().saturating_mul(frustums.len());
         let count = if view_entries < pws.min_view_entries_to_split {
             1
