@@ -174,7 +174,7 @@ fn layers_hold_only_their_marked_entities() {
         .spawn(RayCaster::<Enemy>::for_layer(ray, RayMode::First))
         .id();
     app.update();
-    let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+    let hits = app.world().get::<RayCasterHits<Enemy>>(caster).unwrap();
     assert_eq!(hits.first().map(|h| h.key), Some(other));
 }
 

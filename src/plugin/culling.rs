@@ -40,7 +40,7 @@ use crate::query::CullMode;
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
 #[derive(Component)]
-#[require(VisibleEntityList)]
+#[require(VisibleEntityList<L>)]
 pub struct CullingCamera<L: Component = SpatialBounds> {
     /// The view volume, relative to its eye (SEMANTICS S7).
     pub frustum: Frustum,
@@ -91,17 +91,56 @@ impl<L: Component> CullingCamera<L> {
     }
 }
 
-/// The entities a [`CullingCamera`] saw this frame, sorted by [`Entity`].
+/// The entities a [`CullingCamera<L>`] saw this frame, sorted by [`Entity`].
 ///
-/// Refreshed every frame in
+/// One list per layer: a camera entity that culls two layers has a
+/// `VisibleEntityList<A>` and a `VisibleEntityList<B>`. Refreshed every
+/// frame in
 /// [`SpatialIndexSystems::Queries`](super::SpatialIndexSystems::Queries); the
-/// list's allocation is reused from frame to frame.
-#[derive(Component, Clone, Debug, Default, PartialEq, Eq)]
-pub struct VisibleEntityList {
+/// list's allocation is reused from frame to frame. When the entity loses
+/// its `CullingCamera<L>`, the list goes too, so that it never names
+/// entities that no longer exist.
+#[derive(Component)]
+pub struct VisibleEntityList<L: Component = SpatialBounds> {
     entities: Vec<Entity>,
+    _layer: PhantomData<fn() -> L>,
 }
 
-impl VisibleEntityList {
+impl<L: Component> Default for VisibleEntityList<L> {
+    fn default() -> Self {
+        VisibleEntityList {
+            entities: Vec::new(),
+            _layer: PhantomData,
+        }
+    }
+}
+
+impl<L: Component> Clone for VisibleEntityList<L> {
+    fn clone(&self) -> Self {
+        VisibleEntityList {
+            entities: self.entities.clone(),
+            _layer: PhantomData,
+        }
+    }
+}
+
+impl<L: Component> std::fmt::Debug for VisibleEntityList<L> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VisibleEntityList")
+            .field("entities", &self.entities)
+            .finish()
+    }
+}
+
+impl<L: Component> PartialEq for VisibleEntityList<L> {
+    fn eq(&self, other: &Self) -> bool {
+        self.entities == other.entities
+    }
+}
+
+impl<L: Component> Eq for VisibleEntityList<L> {}
+
+impl<L: Component> VisibleEntityList<L> {
     /// The visible entities, sorted.
     pub fn entities(&self) -> &[Entity] {
         &self.entities
@@ -122,12 +161,19 @@ pub(crate) struct CullingScratch {
     cameras: Vec<Entity>,
 }
 
+/// Observer: an entity that loses its `CullingCamera<L>` loses its list.
+pub(crate) fn drop_list<L: Component>(event: On<Remove<CullingCamera<L>>>, mut commands: Commands) {
+    if let Ok(mut entity) = commands.get_entity(event.entity) {
+        entity.try_remove::<VisibleEntityList<L>>();
+    }
+}
+
 /// Culls every camera of layer `L`: one traversal per mode (and per eight
 /// cameras), then each camera's list is sorted and swapped into place.
 pub(crate) fn cull_cameras<L: Component>(
     index: Res<SpatialIndex<L>>,
     cameras: Query<(Entity, &CullingCamera<L>)>,
-    mut lists: Query<&mut VisibleEntityList, With<CullingCamera<L>>>,
+    mut lists: Query<&mut VisibleEntityList<L>, With<CullingCamera<L>>>,
     mut scratch: Local<CullingScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
@@ -145,10 +191,7 @@ pub(crate) fn cull_cameras<L: Component>(
             continue;
         }
         let views = scratch.cameras.len();
-        if scratch.lists.len() < views {
-            scratch.lists.resize_with(views, Vec::new);
-        }
-        let out = &mut scratch.lists[..views];
+        let out = &mut scratch.lists;
         out.iter_mut().for_each(Vec::clear);
         let (tree, frustums) = (index.tree(), &scratch.frustums);
         frame_queries::visible_into(tree, frustums, mode, &mut scratch.workspace, out);

@@ -253,6 +253,8 @@ impl SpatialAppExt for App {
                     .run_if(any_with_component::<RayCaster<L>>),
             ),
         )
+        .add_observer(culling::drop_list::<L>)
+        .add_observer(raycast::drop_hits::<L>)
         .add_observer(
             |event: On<Remove<L>>,
              mut index: ResMut<SpatialIndex<L>>,

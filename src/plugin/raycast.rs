@@ -37,7 +37,7 @@ use crate::query::{RayHit, RayMode, RayResults};
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
 #[derive(Component)]
-#[require(RayCasterHits)]
+#[require(RayCasterHits<L>)]
 pub struct RayCaster<L: Component = SpatialBounds> {
     /// The ray, in world space (SEMANTICS S3).
     pub ray: Ray,
@@ -67,15 +67,59 @@ impl<L: Component> RayCaster<L> {
     }
 }
 
-/// This frame's answer for a [`RayCaster`] (SEMANTICS S5).
-#[derive(Component, Clone, Debug, Default, PartialEq)]
-pub struct RayCasterHits {
+/// This frame's answer for a [`RayCaster<L>`] (SEMANTICS S5).
+///
+/// One answer per layer: an entity with casters of two layers has a
+/// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
+/// `RayCaster<L>`, the answer goes too, so that it never names entities
+/// that no longer exist.
+#[derive(Component)]
+pub struct RayCasterHits<L: Component = SpatialBounds> {
     hits: Vec<RayHit<Entity>>,
     any: bool,
     error: Option<SpatialError>,
+    _layer: PhantomData<fn() -> L>,
 }
 
-impl RayCasterHits {
+impl<L: Component> Default for RayCasterHits<L> {
+    fn default() -> Self {
+        RayCasterHits {
+            hits: Vec::new(),
+            any: false,
+            error: None,
+            _layer: PhantomData,
+        }
+    }
+}
+
+impl<L: Component> Clone for RayCasterHits<L> {
+    fn clone(&self) -> Self {
+        RayCasterHits {
+            hits: self.hits.clone(),
+            any: self.any,
+            error: self.error,
+            _layer: PhantomData,
+        }
+    }
+}
+
+impl<L: Component> std::fmt::Debug for RayCasterHits<L> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RayCasterHits")
+            .field("hits", &self.hits)
+            .field("any", &self.any)
+            .field("error", &self.error)
+            .finish()
+    }
+}
+
+impl<L: Component> PartialEq for RayCasterHits<L> {
+    fn eq(&self, other: &Self) -> bool {
+        (&self.hits, self.any, self.error) == (&other.hits, other.any, other.error)
+    }
+}
+
+impl<L: Component> RayCasterHits<L> {
     /// The hits sorted by `(t, entity)`: at most one for
     /// [`RayMode::First`], none for [`RayMode::Any`].
     pub fn hits(&self) -> &[RayHit<Entity>] {
@@ -108,11 +152,18 @@ pub(crate) struct RayScratch {
     results: RayResults<Entity>,
 }
 
+/// Observer: an entity that loses its `RayCaster<L>` loses its answer.
+pub(crate) fn drop_hits<L: Component>(event: On<Remove<RayCaster<L>>>, mut commands: Commands) {
+    if let Ok(mut entity) = commands.get_entity(event.entity) {
+        entity.try_remove::<RayCasterHits<L>>();
+    }
+}
+
 /// Casts every ray of layer `L`: one batched traversal per distinct mode.
 pub(crate) fn cast_rays<L: Component>(
     index: Res<SpatialIndex<L>>,
     casters: Query<(Entity, &RayCaster<L>)>,
-    mut answers: Query<&mut RayCasterHits, With<RayCaster<L>>>,
+    mut answers: Query<&mut RayCasterHits<L>, With<RayCaster<L>>>,
     mut scratch: Local<RayScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
