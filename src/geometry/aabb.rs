@@ -125,26 +125,6 @@ impl Aabb {
         }
     }
 
-    /// The common part of both boxes (inverted on an axis where they do
-    /// not meet).
-    ///
-    /// ```
-    /// use bevy_rtree::Aabb;
-    /// use glam::Vec3;
-    ///
-    /// let a = Aabb::new(Vec3::ZERO, Vec3::splat(2.0))?;
-    /// let b = Aabb::new(Vec3::ONE, Vec3::splat(3.0))?;
-    /// assert_eq!(a.intersection(&b), Aabb::new(Vec3::ONE, Vec3::splat(2.0))?);
-    /// # Ok::<(), bevy_rtree::SpatialError>(())
-    /// ```
-    #[inline]
-    pub fn intersection(&self, other: &Aabb) -> Aabb {
-        Aabb {
-            min: self.min.max(other.min),
-            max: self.max.min(other.max),
-        }
-    }
-
     /// The box grown by `amount` (per axis, non-negative) on every side.
     #[inline]
     pub fn grown(&self, amount: Vec3) -> Aabb {

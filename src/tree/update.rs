@@ -114,23 +114,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let p = &self.proxies[proxy as usize];
             (p.leaf, p.lane as usize, p.fat)
         };
-        let old = self.nodes[leaf as usize].lane_box(lane);
-        let displacement = (aabb.min - old.min + aabb.max - old.max) * 0.5;
         if fat.contains(&aabb) {
-            if self.settings.stretch_unused(&fat, &aabb, displacement) {
-                // Within the old box, so within the leaf's bound: no
-                // structural change, only a tighter box for later refits.
-                let refit = self.settings.fatten(&aabb, displacement).intersection(&fat);
-                self.proxies[proxy as usize].fat = refit;
-                self.nodes[leaf as usize].set_lane_box(lane, &aabb);
-                self.maintenance.moves_in_leaf += 1;
-                return MoveKind::InLeaf;
-            }
             self.nodes[leaf as usize].set_lane_box(lane, &aabb);
             self.maintenance.moves_in_place += 1;
             return MoveKind::InPlace;
         }
 
+        let old = self.nodes[leaf as usize].lane_box(lane);
+        let displacement = (aabb.min - old.min + aabb.max - old.max) * 0.5;
         let new_fat = self.settings.fatten(&aabb, displacement);
         if self.leaf_bound_contains(leaf, &new_fat) {
             self.proxies[proxy as usize].fat = new_fat;
