@@ -80,7 +80,8 @@
 //!   A ray hits a box by the slab test written with explicit comparisons
 //!   (never `min`/`max`, whose NaN handling differs between targets); the
 //!   entry `t` is `0` when the origin is inside or on the box. Grazing a face,
-//!   an edge or a corner is a hit.
+//!   an edge or a corner is a hit. A hit's `t` is a finite `f32`: an
+//!   unbounded ray that would enter a box only beyond `f32::MAX` misses it.
 //! - **First hit** is the hit with the smallest `(t, key)`; **all hits** are
 //!   sorted by `(t, key)` and an optional limit cuts that list; **any hit**
 //!   says whether one exists. In a batch, slot `i` answers ray `i` alone; an

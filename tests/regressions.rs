@@ -62,6 +62,27 @@ fn a_moved_self_join_at_f32_max_reports_every_pair_of_the_moved_entry() {
     );
 }
 
+/// An unbounded ray with a tiny direction overflowed both slabs' `t` to
+/// infinity and "hit" a box it passes far from, at `t = inf` (found by the
+/// ground-truth tests).
+#[test]
+fn an_unbounded_ray_does_not_hit_a_box_at_infinity() {
+    let mut tree = RTree::new();
+    let aside = common::aabb([100.0, 200.0, 0.0], [101.0, 201.0, 0.0]);
+    tree.insert(1u32, aside).unwrap();
+    let ray = Ray::new(Vec3::ZERO, Vec3::new(1e-37, 1e-37, 0.0), f32::INFINITY).unwrap();
+    let mut ws = QueryWorkspace::default();
+    assert_eq!(tree.cast_ray(&ray, &mut ws).unwrap(), None);
+    assert!(!tree.ray_hits_any(&ray, &mut ws).unwrap());
+    assert_eq!(ray.prepared().unwrap().entry(&aside, f32::INFINITY), None);
+    // A box it does reach, at a t that f32 holds, is still hit.
+    let on_the_line = common::aabb([1e-30, 1e-30, 0.0], [1.0, 1.0, 0.0]);
+    assert_eq!(
+        ray.prepared().unwrap().entry(&on_the_line, f32::INFINITY),
+        Some(1e7)
+    );
+}
+
 /// Nodes a box query of every entry's own box visits, summed: a measure of
 /// how well the tree is packed that no timing noise disturbs.
 fn box_query_visits(tree: &RTree<u32>, boxes: &[Aabb]) -> u64 {

@@ -45,6 +45,13 @@ impl RayTest {
 ///
 /// The comparisons are written out on purpose: `f32::min`/`max` treat NaN
 /// differently on different targets, which would turn grazing rays into misses.
+///
+/// The limit is taken as at most `f32::MAX` ([`finite_limit`]): an entry
+/// `t` has to be a number the answer can report. Without that, an unbounded
+/// ray with a tiny direction, whose slab distances all overflow to
+/// infinity, "hit" boxes it passes far from at `t = inf` (`lo = hi = inf`).
+/// A node's entry is never later than its entries', so the tree still
+/// prunes only what cannot hit.
 #[inline]
 pub(crate) fn ray_box_entry(
     ray: &RayTest,
@@ -53,7 +60,7 @@ pub(crate) fn ray_box_entry(
     max: [f32; 3],
 ) -> Option<f32> {
     let mut lo = 0.0f32;
-    let mut hi = limit;
+    let mut hi = finite_limit(limit);
     for i in 0..3 {
         let o = ray.origin[i];
         if ray.dir[i] == 0.0 {
@@ -78,6 +85,14 @@ pub(crate) fn ray_box_entry(
         }
     }
     if lo <= hi { Some(lo) } else { None }
+}
+
+/// `limit`, or `f32::MAX` if it is larger (an unbounded ray's): the ray
+/// predicate's starting `hi`, in the scalar test and in every lane test,
+/// so that an entry at `t = inf` is a miss (see [`ray_box_entry`]).
+#[inline(always)]
+pub(crate) fn finite_limit(limit: f32) -> f32 {
+    if limit > f32::MAX { f32::MAX } else { limit }
 }
 
 /// `dot(n, p - eye) + offset`, with the association order fixed, so that the

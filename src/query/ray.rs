@@ -10,7 +10,7 @@ use std::ops::ControlFlow;
 use glam::{BVec4A, Vec4};
 
 use super::QueryWorkspace;
-use crate::geometry::predicates::RayTest;
+use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
@@ -113,7 +113,7 @@ fn lanes_of<const W: usize, const FLAT: bool>(
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_TEST) {
         let mut lo = Vec4::ZERO;
-        let mut hi = Vec4::splat(limit);
+        let mut hi = Vec4::splat(finite_limit(limit));
         let mut slab_ok = BVec4A::splat(true);
         for axis in 0..3 {
             if FLAT && ray.dir[axis] == 0.0 {

@@ -33,7 +33,7 @@ use std::ops::ControlFlow;
 use glam::Vec4;
 
 use super::ray::near_far_rows;
-use crate::geometry::predicates::RayTest;
+use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 use crate::tree::{QueryStats, RTree};
 
@@ -74,7 +74,7 @@ pub(super) fn avx_ray_lanes<const W: usize>(
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_AVX_TEST) {
         let mut lo = _mm256_setzero_ps();
-        let mut hi = _mm256_set1_ps(limit);
+        let mut hi = _mm256_set1_ps(finite_limit(limit));
         for (axis, &(near, far)) in rows.iter().enumerate() {
             let origin = _mm256_set1_ps(ray.origin[axis]);
             let inv = _mm256_set1_ps(ray.inv[axis]);

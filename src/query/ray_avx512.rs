@@ -33,7 +33,7 @@ use glam::Vec4;
 
 use super::join_avx512::{LANES_PER_AVX512_TEST, avx512_tests_nodes, sixteen_lanes};
 use super::ray::near_far_rows;
-use crate::geometry::predicates::RayTest;
+use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::tree::node::{LANES_PER_TEST, Node};
 use crate::tree::{QueryStats, RTree};
 
@@ -61,7 +61,7 @@ pub(super) fn avx512_ray_lanes<const W: usize>(
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_AVX512_TEST) {
         let mut lo = _mm512_setzero_ps();
-        let mut hi = _mm512_set1_ps(limit);
+        let mut hi = _mm512_set1_ps(finite_limit(limit));
         for (axis, &(near, far)) in rows.iter().enumerate() {
             let origin = _mm512_set1_ps(ray.origin[axis]);
             let inv = _mm512_set1_ps(ray.inv[axis]);
