@@ -248,13 +248,13 @@ fn a_respawn_through_the_plugin_leaves_the_tree_as_good_as_fresh() {
 /// again, so it grew past the number of nodes it can name.
 #[test]
 fn the_repair_queue_never_outgrows_the_level_one_nodes() {
-    for budget in [Some(64), None] {
-        let scene = TownScene::new(20_000, 21);
+    for budget in [Some(4), None] {
+        let scene = TownScene::new(5_000, 21);
         let (mut tree, ids) = scene.bulk_loaded_tree();
         let mut rng = SceneRng::new(34);
-        for frame in 0..120 {
-            for _ in 0..400 {
-                let id = ids[rng.below(ids.len())];
+        for frame in 0..40 {
+            // Every entity teleports every frame.
+            for &id in &ids {
                 let (_, aabb) = tree.get(id).unwrap();
                 let centre = anywhere(&mut rng);
                 let half = aabb.extent() * 0.5;
