@@ -195,29 +195,72 @@ impl Aabb {
             let t = Vec3::from(transform.translation);
             return Aabb::new(self.min + t, self.max + t);
         }
-        // The error budget, with u = 2^-53 and `scale` below (the sum of the
-        // magnitudes that enter a coordinate): the centre and half extents
-        // round by at most u of themselves, each 3-term product row with the
-        // translation by at most 4u of its magnitudes, the half extents' row
-        // by 3u, and the final sum and the slack's own subtraction by one
-        // rounding each: about 7u * scale in all. `slack` is 16u * scale.
         let center = (self.min.as_dvec3() + self.max.as_dvec3()) * 0.5;
         let half = (self.max.as_dvec3() - self.min.as_dvec3()) * 0.5;
-        let matrix = glam::Mat3::from(m).as_dmat3();
-        let abs = matrix.abs();
-        let translation = Vec3::from(transform.translation).as_dvec3();
-        let world_center = matrix * center + translation;
-        let world_half = abs * half;
-        let scale = abs * center.abs() + translation.abs() + world_half;
-        let slack = scale * (8.0 * f64::EPSILON);
-        let min = (world_center - world_half - slack)
-            .to_array()
-            .map(f32_at_most);
-        let max = (world_center + world_half + slack)
-            .to_array()
-            .map(f32_at_least);
-        Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
+        outward_image(center, half, transform)
     }
+
+    /// The world box of an oriented box given, as Bevy's `Aabb` component
+    /// gives it, by a local `center` and non-negative `half_extents`: the
+    /// box that contains the exact image of every corner under `transform`
+    /// (S1 evaluated in `f64` from the `f32` inputs and rounded outward,
+    /// for pure translations too, since `center + t` would round either
+    /// way). A negative, NaN or infinite input, a transform that is not
+    /// finite or a result beyond [`MAX_COORD`] is an
+    /// [`SpatialError::InvalidBox`].
+    ///
+    /// ```
+    /// use bevy_rtree::Aabb;
+    /// use glam::{Affine3A, Quat, Vec3};
+    ///
+    /// let turned = Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), Vec3::X * 100.0);
+    /// let world = Aabb::from_oriented(Vec3::ZERO, Vec3::ONE, &turned)?;
+    /// for corner in [Vec3::ONE, -Vec3::ONE, Vec3::new(1.0, -1.0, 1.0)] {
+    ///     assert!(world.contains_point(turned.transform_point3(corner)));
+    /// }
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn from_oriented(
+        center: Vec3,
+        half_extents: Vec3,
+        transform: &Affine3A,
+    ) -> Result<Aabb, SpatialError> {
+        let inputs_ok = center.is_finite() && half_extents.cmpge(Vec3::ZERO).all();
+        let transform_ok = transform.matrix3.is_finite() && transform.translation.is_finite();
+        if !(inputs_ok && half_extents.is_finite() && transform_ok) {
+            return Err(SpatialError::InvalidBox);
+        }
+        outward_image(center.as_dvec3(), half_extents.as_dvec3(), transform)
+    }
+}
+
+/// S1 in `f64`: the image of the box `center ± half` under `transform`,
+/// rounded outward to `f32` past the evaluation's own error bound.
+fn outward_image(
+    center: glam::DVec3,
+    half: glam::DVec3,
+    transform: &Affine3A,
+) -> Result<Aabb, SpatialError> {
+    // The error budget, with u = 2^-53 and `scale` below (the sum of the
+    // magnitudes that enter a coordinate): the centre and half extents
+    // round by at most u of themselves, each 3-term product row with the
+    // translation by at most 4u of its magnitudes, the half extents' row by
+    // 3u, and the final sum and the slack's own subtraction by one rounding
+    // each: about 7u * scale in all. `slack` is 16u * scale.
+    let matrix = glam::Mat3::from(transform.matrix3).as_dmat3();
+    let abs = matrix.abs();
+    let translation = Vec3::from(transform.translation).as_dvec3();
+    let world_center = matrix * center + translation;
+    let world_half = abs * half;
+    let scale = abs * center.abs() + translation.abs() + world_half;
+    let slack = scale * (8.0 * f64::EPSILON);
+    let min = (world_center - world_half - slack)
+        .to_array()
+        .map(f32_at_most);
+    let max = (world_center + world_half + slack)
+        .to_array()
+        .map(f32_at_least);
+    Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
 }
 
 /// The largest `f32` not above `x` (`x` finite).

@@ -7,6 +7,7 @@ use bevy_ecs::prelude::*;
 
 use super::frame_queries::FrameWorkspace;
 use super::index::SyncCount;
+use crate::query::QueryWorkspace;
 
 /// Work done by one query family in one frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -25,7 +26,16 @@ impl QueryWork {
     /// Adds one run's statistics, taken from its workspace.
     pub(crate) fn record(&mut self, queries: usize, workspace: &mut FrameWorkspace) {
         // Both workspaces (one thread or a task per thread) sum their own.
-        let stats = workspace.take_stats();
+        self.add(queries, workspace.take_stats());
+    }
+
+    /// Adds one run's statistics, taken from a single-threaded workspace.
+    #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
+    pub(crate) fn record_workspace(&mut self, queries: usize, workspace: &mut QueryWorkspace) {
+        self.add(queries, workspace.take_stats());
+    }
+
+    fn add(&mut self, queries: usize, stats: crate::QueryStats) {
         self.runs += 1;
         self.queries += queries as u64;
         self.nodes_visited += stats.nodes_visited;

@@ -45,6 +45,10 @@ pub struct SpatialIndex<L: Component = SpatialBounds> {
     proxies: EntityHashMap<ProxyId>,
     /// Entities already warned about an invalid box (one warning each).
     warned: EntityHashSet,
+    /// Entities of the layer left out for an invalid box, until it is valid
+    /// again (those that answer by other means, like Bevy's renderables, are
+    /// tested one by one).
+    unindexed: EntityHashSet,
     /// Bumped by every change of the indexed set or of a box, so that joins
     /// can skip frames where neither of their layers changed.
     generation: u64,
@@ -58,6 +62,7 @@ impl<L: Component> SpatialIndex<L> {
             tree,
             proxies: EntityHashMap::default(),
             warned: EntityHashSet::default(),
+            unindexed: EntityHashSet::default(),
             generation: 0,
             _layer: PhantomData,
         }
@@ -118,6 +123,12 @@ impl<L: Component> SpatialIndex<L> {
         self.generation
     }
 
+    /// The entities of the layer that are left out of the index for an
+    /// invalid box, until they get a valid one.
+    pub fn unindexed(&self) -> impl ExactSizeIterator<Item = Entity> + '_ {
+        self.unindexed.iter().copied()
+    }
+
     /// Takes `entity` out of the index if it is there.
     pub(crate) fn remove(&mut self, entity: Entity) -> bool {
         match self.proxies.remove(&entity) {
@@ -162,7 +173,10 @@ pub(crate) fn sync_layer<L: Component>(
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    apply_changes(&mut index, changed.iter(), &mut scratch, &sink);
+    // Every entity of a layer is in the main layer too: one bad box is
+    // reported there only, one warning and one count.
+    let changed = changed.iter().map(|(e, b)| (e, b.0));
+    apply_changes(&mut index, changed, &mut scratch, &sink, false);
 }
 
 /// Applies the changed boxes of this frame to the main index. Gaining the
@@ -175,7 +189,8 @@ pub(crate) fn sync_main(
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    apply_changes(&mut index, changed.iter(), &mut scratch, &sink);
+    let changed = changed.iter().map(|(e, b)| (e, b.0));
+    apply_changes(&mut index, changed, &mut scratch, &sink, true);
 }
 
 /// A sync system's buffers, kept from frame to frame so syncing does not
@@ -188,40 +203,46 @@ pub(crate) struct SyncScratch {
     moves: Vec<(ProxyId, Aabb)>,
 }
 
-/// Updates, inserts or (for invalid boxes) removes each changed entity.
+/// Updates, inserts or (for invalid boxes) removes each changed entity,
+/// warning once per entity about an invalid box and counting it where
+/// `report` says this layer reports them. An entity appears at most once in
+/// `changed`.
 ///
 /// Moves are gathered and applied as one [`RTree::update_batch`](crate::RTree::update_batch).
 /// New entities are gathered and inserted together: when they outnumber the
 /// entities already indexed (the first frame of a scene) the tree is bulk
 /// loaded, which is several times faster and gives a better tree.
-fn apply_changes<'a, L: Component>(
+pub(crate) fn apply_changes<L: Component>(
     index: &mut SpatialIndex<L>,
-    changed: impl Iterator<Item = (Entity, &'a SpatialBounds)>,
+    changed: impl Iterator<Item = (Entity, Aabb)>,
     scratch: &mut SyncScratch,
     sink: &DiagnosticsSink,
+    report: bool,
 ) {
     let mut count = SyncCount::default();
     let SyncScratch { fresh, moves } = scratch;
     fresh.clear();
     moves.clear();
-    for (entity, bounds) in changed {
-        let aabb = bounds.0;
+    for (entity, aabb) in changed {
         if let Err(error) = aabb.validate() {
             if index.remove(entity) {
                 count.removed += 1;
             }
-            // Every indexed entity is in the main layer: report it there
-            // only, so that one bad box is one warning and one count.
-            if !is_main_layer::<L>() {
+            index.unindexed.insert(entity);
+            if !report {
                 continue;
             }
             count.invalid += 1;
             if index.warned.insert(entity) {
                 log::warn!(
-                    "{entity} has an invalid SpatialBounds ({error}); it is left out of the spatial index until its box is valid"
+                    "{entity} has an invalid box ({error}) for the spatial index of {}; it is left out until its box is valid",
+                    std::any::type_name::<L>()
                 );
             }
             continue;
+        }
+        if !index.unindexed.is_empty() {
+            index.unindexed.remove(&entity);
         }
         match index.proxies.get(&entity) {
             Some(&id) => moves.push((id, aabb)),
@@ -290,6 +311,7 @@ pub(crate) fn remove_from_layer<L: Component>(
     // Gone for good (or until it returns as a new entity): forget that it
     // was warned about, so the set stays as small as the live bad entities.
     index.warned.remove(&entity);
+    index.unindexed.remove(&entity);
     if index.remove(entity) {
         sink.add(|d| d.sync.removed += 1);
     }

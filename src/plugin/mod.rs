@@ -57,6 +57,8 @@ macro_rules! impl_layer_generic_traits {
 
 #[cfg(feature = "bevy_camera")]
 mod bevy_camera;
+#[cfg(feature = "bevy_camera")]
+mod bevy_visibility;
 mod bounds;
 mod culling;
 mod diagnostics;
@@ -75,6 +77,8 @@ use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 
 #[cfg(feature = "bevy_camera")]
 pub use bevy_camera::FollowBevyFrustum;
+#[cfg(feature = "bevy_camera")]
+pub use bevy_visibility::{BevyVisibilityPlugin, Renderable, RenderableSyncSystems};
 pub use bounds::{NoSpatialIndex, SpatialBounds};
 pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
@@ -224,6 +228,7 @@ impl SpatialAppExt for App {
                 .add_spatial_layer::<L>();
         };
         self.insert_resource(index::SpatialIndex::<L>::new(config.tree));
+        register_layer_queries::<L>(self, &config);
         if index::is_main_layer::<L>() {
             self.add_systems(
                 config.schedule,
@@ -239,23 +244,7 @@ impl SpatialAppExt for App {
                     .run_if(any_with_component::<L>),
             );
         }
-        self.add_systems(
-            config.schedule,
-            (
-                index::maintain_layer::<L>
-                    .in_set(SpatialIndexSystems::Maintain)
-                    .run_if(index::needs_maintenance::<L>),
-                culling::cull_cameras::<L>
-                    .in_set(SpatialIndexSystems::Queries)
-                    .run_if(any_with_component::<CullingCamera<L>>),
-                raycast::cast_rays::<L>
-                    .in_set(SpatialIndexSystems::Queries)
-                    .run_if(any_with_component::<RayCaster<L>>),
-            ),
-        )
-        .add_observer(culling::drop_list::<L>)
-        .add_observer(raycast::drop_hits::<L>)
-        .add_observer(
+        self.add_observer(
             |event: On<Remove<L>>,
              mut index: ResMut<SpatialIndex<L>>,
              sink: Res<DiagnosticsSink>| {
@@ -303,6 +292,27 @@ impl SpatialAppExt for App {
                     .run_if(join::join_has_work::<A, B>),
             )
     }
+}
+
+/// The systems that serve a layer's index, whatever fills it: repair,
+/// culling cameras and ray casters of the layer.
+fn register_layer_queries<L: Component>(app: &mut App, config: &SpatialIndexConfig) {
+    app.add_systems(
+        config.schedule,
+        (
+            index::maintain_layer::<L>
+                .in_set(SpatialIndexSystems::Maintain)
+                .run_if(index::needs_maintenance::<L>),
+            culling::cull_cameras::<L>
+                .in_set(SpatialIndexSystems::Queries)
+                .run_if(any_with_component::<CullingCamera<L>>),
+            raycast::cast_rays::<L>
+                .in_set(SpatialIndexSystems::Queries)
+                .run_if(any_with_component::<RayCaster<L>>),
+        ),
+    )
+    .add_observer(culling::drop_list::<L>)
+    .add_observer(raycast::drop_hits::<L>);
 }
 
 /// Observer: an entity that drops its opt-out marker is put back on the next

@@ -172,6 +172,25 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         &self.settings
     }
 
+    /// A box around every entry's exact box (the union of the root's
+    /// lanes), or `None` for an empty tree.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// assert_eq!(tree.bounds(), None);
+    /// tree.insert(1u8, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
+    /// tree.insert(2u8, Aabb::new(Vec3::splat(4.0), Vec3::splat(5.0))?)?;
+    /// let all = tree.bounds().unwrap();
+    /// assert!(all.contains(&Aabb::new(Vec3::ZERO, Vec3::splat(5.0))?));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn bounds(&self) -> Option<Aabb> {
+        (!self.is_empty()).then(|| self.nodes[self.root as usize].lanes_union())
+    }
+
     /// Levels from the root to the leaves (1 for a tree that is one leaf).
     pub fn height(&self) -> usize {
         self.nodes[self.root as usize].level as usize + 1

@@ -1,0 +1,176 @@
+//! Bevy's own visibility served by the index (feature `bevy_camera`).
+//!
+//! [`BevyVisibilityPlugin`] indexes every entity Bevy's CPU culling tests
+//! (from Bevy's `Aabb` and `GlobalTransform`, with nothing of ours on the
+//! entity) in the layer [`Renderable`], and takes over Bevy's
+//! `check_visibility_cpu_culling`: for every active camera, the tree gives
+//! the candidates, and Bevy's own sphere and oriented-box tests decide
+//! those the tree cannot prove visible. Every `ViewVisibility` and every
+//! camera's `VisibleEntities` come out as Bevy's own system makes them.
+
+mod cameras;
+mod sync;
+
+use bevy_app::prelude::*;
+use bevy_camera::visibility::{
+    VisibilitySystems, check_visibility_cpu_culling, check_visibility_ranges,
+};
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
+use bevy_transform::TransformSystems;
+
+use super::index::SpatialIndex;
+use super::{SpatialIndexConfig, SpatialIndexPlugin, SpatialIndexSystems};
+
+/// The layer of Bevy's renderables: every entity that Bevy's CPU frustum
+/// culling tests (it has `GlobalTransform`, `InheritedVisibility` and
+/// `ViewVisibility`, and no `NoCpuCulling`) and that has Bevy's `Aabb`,
+/// no `NoFrustumCulling` and a usable world box.
+///
+/// A marker type, never put on entities: with [`BevyVisibilityPlugin`]
+/// every such entity is in `SpatialIndex<Renderable>`, kept current from
+/// its `Aabb` and `GlobalTransform`, so every query of the crate works on
+/// Bevy's renderables with no component of ours:
+/// `SpatialQuery<Renderable>`, `RayCaster::<Renderable>::for_layer`,
+/// `CullingCamera::<Renderable>::for_layer`.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_camera::primitives::Aabb;
+/// use bevy_camera::visibility::{InheritedVisibility, ViewVisibility};
+/// use bevy_rtree::plugin::{BevyVisibilityPlugin, Renderable, SpatialIndex, SpatialIndexPlugin};
+/// use bevy_transform::prelude::*;
+/// use glam::Vec3;
+///
+/// let mut app = App::new();
+/// app.add_plugins((TransformPlugin, SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+/// let crate_box = app
+///     .world_mut()
+///     .spawn((
+///         Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+///         Transform::from_xyz(10.0, 0.0, 0.0),
+///         InheritedVisibility::VISIBLE,
+///         ViewVisibility::default(),
+///     ))
+///     .id();
+/// app.update();
+/// let index = app.world().resource::<SpatialIndex<Renderable>>();
+/// let found = index.get(crate_box).unwrap();
+/// assert!(found.contains_point(Vec3::new(10.5, 0.5, 0.5)));
+/// ```
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct Renderable;
+
+/// Serves Bevy's camera visibility from the index: add it with (after)
+/// [`SpatialIndexPlugin`], in an app with Bevy's `CameraPlugin` (part of
+/// `DefaultPlugins`).
+///
+/// It indexes Bevy's renderables in the layer [`Renderable`] and replaces
+/// Bevy's `check_visibility_cpu_culling` with a system in the same set,
+/// `VisibilitySystems::CheckVisibility`, that gives every active camera the
+/// same `ViewVisibility` and sorted `VisibleEntities` per visibility class
+/// as Bevy's: `InheritedVisibility`, `RenderLayers`, `VisibilityRange`,
+/// `NoFrustumCulling`, `NoCpuCulling` (on entities and on cameras) and
+/// inactive cameras are honoured exactly as there, and Bevy's sphere test
+/// and oriented-box test (without the far plane) decide every candidate
+/// that the tree does not prove inside every plane. Entities without an
+/// `Aabb` (with or without Bevy's `Sphere`), with `NoFrustumCulling`, or
+/// whose world box is unusable (a NaN or zero-scale transform, a NaN or
+/// negative half extent) are tested one by one, as Bevy tests them.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::plugin::{BevyVisibilityPlugin, SpatialIndexPlugin};
+///
+/// let mut app = App::new();
+/// // After DefaultPlugins (or CameraPlugin) in a real game.
+/// app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+/// ```
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BevyVisibilityPlugin;
+
+/// The plugin's system set in `PostUpdate`: the renderables' index follows
+/// their transforms and boxes; it runs after transform propagation and
+/// Bevy's bounds, before `VisibilitySystems::CheckVisibility`.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct RenderableSyncSystems;
+
+impl Plugin for BevyVisibilityPlugin {
+    fn build(&self, app: &mut App) {
+        let Some(config) = app.world().get_resource::<SpatialIndexConfig>().cloned() else {
+            panic!(
+                "BevyVisibilityPlugin needs SpatialIndexPlugin: add it first, as in \
+                 app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))"
+            );
+        };
+        debug_assert!(app.is_plugin_added::<SpatialIndexPlugin>());
+        app.insert_resource(SpatialIndex::<Renderable>::new(config.tree))
+            .init_resource::<sync::Resync>()
+            .configure_sets(
+                PostUpdate,
+                RenderableSyncSystems
+                    .after(TransformSystems::Propagate)
+                    .after(VisibilitySystems::CalculateBounds)
+                    .before(VisibilitySystems::CheckVisibility),
+            )
+            .add_systems(
+                PostUpdate,
+                (
+                    sync::sync_renderables.in_set(RenderableSyncSystems),
+                    cameras::check_visibility_from_index
+                        .in_set(VisibilitySystems::CheckVisibility)
+                        // Where Bevy orders its own: after this frame's
+                        // visibility ranges.
+                        .after(check_visibility_ranges),
+                ),
+            );
+        if config.schedule == PostUpdate.intern() {
+            // The layer's own queries (SpatialQuery and the plugin's
+            // cameras and casters) then see this frame's renderables.
+            app.configure_sets(
+                PostUpdate,
+                RenderableSyncSystems.before(SpatialIndexSystems::Maintain),
+            );
+        }
+        sync::add_observers(app);
+        super::register_layer_queries::<Renderable>(app, &config);
+        // Added after Bevy's CameraPlugin, as documented: Bevy's system is
+        // there to take out now, so that an app driven by `update()` alone
+        // (a headless test) runs without it too.
+        let taken_out = take_out_bevy_culling(app);
+        app.insert_resource(BevyCullingTakenOut(taken_out));
+    }
+
+    fn finish(&self, app: &mut App) {
+        // Again once every plugin is built, in case Bevy's was added after
+        // this one.
+        let taken_out = take_out_bevy_culling(app);
+        let Some(mut done) = app.world_mut().get_resource_mut::<BevyCullingTakenOut>() else {
+            return;
+        };
+        done.0 |= taken_out;
+        if !done.0 {
+            log::warn!(
+                "BevyVisibilityPlugin: Bevy's check_visibility_cpu_culling was not found \
+                 (is CameraPlugin or DefaultPlugins in the app?); the index serves \
+                 visibility alone"
+            );
+        }
+    }
+}
+
+/// Whether Bevy's `check_visibility_cpu_culling` has been taken out of the
+/// app.
+#[derive(Resource)]
+struct BevyCullingTakenOut(bool);
+
+/// Takes Bevy's `check_visibility_cpu_culling` out of `PostUpdate`; whether
+/// there was one.
+fn take_out_bevy_culling(app: &mut App) -> bool {
+    let removed = app.remove_systems_in_set(
+        PostUpdate,
+        check_visibility_cpu_culling,
+        ScheduleCleanupPolicy::RemoveSystemsOnly,
+    );
+    matches!(removed, Ok(n) if n > 0)
+}

@@ -1,0 +1,106 @@
+//! The index of Bevy's renderables follows their `Aabb` and
+//! `GlobalTransform`: changed rows are rescanned each frame, and observers
+//! see entities leave (or come back to) the set Bevy's culling tests.
+
+use bevy_camera::primitives::Aabb as BevyAabb;
+use bevy_camera::visibility::{
+    InheritedVisibility, NoCpuCulling, NoFrustumCulling, ViewVisibility,
+};
+use bevy_ecs::event::EventPattern;
+use bevy_ecs::prelude::*;
+use bevy_transform::prelude::GlobalTransform;
+use glam::Vec3;
+
+use super::Renderable;
+use crate::geometry::Aabb;
+use crate::plugin::diagnostics::DiagnosticsSink;
+use crate::plugin::index::{self, SpatialIndex, SyncScratch};
+
+/// The filter of the set Bevy's CPU culling tests, less the entities that
+/// the index leaves to one-by-one tests (no `Aabb`, or `NoFrustumCulling`).
+pub(super) type Indexable = (
+    With<InheritedVisibility>,
+    With<ViewVisibility>,
+    Without<NoCpuCulling>,
+    Without<NoFrustumCulling>,
+);
+
+/// Entities whose membership may have come back since the last sync (an
+/// opt-out marker removed): their box is read again.
+#[derive(Resource, Default)]
+pub(super) struct Resync(Vec<Entity>);
+
+/// The world box of a Bevy `Aabb` under a transform: the box around the
+/// oriented box Bevy's tests see, rounded outward (SEMANTICS S1). An
+/// unusable one (NaN, a negative half extent, a collapsed axis) is the
+/// inverted box, which the index refuses and counts.
+pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
+    let affine = transform.affine();
+    if affine.matrix3.determinant() == 0.0 {
+        return Aabb::INVERTED;
+    }
+    let center = Vec3::from(aabb.center);
+    let half = Vec3::from(aabb.half_extents);
+    Aabb::from_oriented(center, half, &affine).unwrap_or(Aabb::INVERTED)
+}
+
+/// Applies this frame's changed renderables (and those to read again) to
+/// the index, in one batch.
+#[allow(clippy::type_complexity)]
+pub(super) fn sync_renderables(
+    mut index: ResMut<SpatialIndex<Renderable>>,
+    changed: Query<
+        (Entity, &BevyAabb, &GlobalTransform),
+        (Indexable, Or<(Changed<GlobalTransform>, Changed<BevyAabb>)>),
+    >,
+    members: Query<(&BevyAabb, &GlobalTransform), Indexable>,
+    mut resync: ResMut<Resync>,
+    mut scratch: Local<SyncScratch>,
+    sink: Res<DiagnosticsSink>,
+) {
+    let mut again = std::mem::take(&mut resync.0);
+    again.sort_unstable();
+    again.dedup();
+    // One box per entity: one that changed this frame comes from `changed`.
+    again.retain(|&entity| !changed.contains(entity));
+    let again = again.into_iter().filter_map(|entity| {
+        let (aabb, transform) = members.get(entity).ok()?;
+        Some((entity, world_box(aabb, transform)))
+    });
+    let boxes = changed
+        .iter()
+        .map(|(entity, aabb, transform)| (entity, world_box(aabb, transform)))
+        .chain(again);
+    index::apply_changes(&mut index, boxes, &mut scratch, &sink, true);
+}
+
+/// Observers: an entity leaves the index when it loses what Bevy's culling
+/// needs (its box, its transform, its visibility components) or gains an
+/// opt-out marker, and is read again when it loses the marker.
+pub(super) fn add_observers(app: &mut bevy_app::App) {
+    app.add_observer(leave::<Remove<BevyAabb>>)
+        .add_observer(leave::<Remove<GlobalTransform>>)
+        .add_observer(leave::<Remove<InheritedVisibility>>)
+        .add_observer(leave::<Remove<ViewVisibility>>)
+        .add_observer(leave::<Add<NoCpuCulling>>)
+        .add_observer(leave::<Add<NoFrustumCulling>>)
+        .add_observer(come_back::<Remove<NoCpuCulling>>)
+        .add_observer(come_back::<Remove<NoFrustumCulling>>);
+}
+
+fn leave<P: EventPattern>(
+    event: On<P>,
+    mut index: ResMut<SpatialIndex<Renderable>>,
+    sink: Res<DiagnosticsSink>,
+) where
+    P::Event: EntityEvent,
+{
+    index::remove_from_layer(event.event_target(), &mut index, &sink);
+}
+
+fn come_back<P: EventPattern>(event: On<P>, mut resync: ResMut<Resync>)
+where
+    P::Event: EntityEvent,
+{
+    resync.0.push(event.event_target());
+}

@@ -1,0 +1,401 @@
+//! Bevy's own visibility served by the index, against Bevy itself: twin
+//! Apps from one seed, one running Bevy's `check_visibility_cpu_culling`,
+//! the other with `BevyVisibilityPlugin`; after every frame every entity's
+//! `ViewVisibility` and every camera's `VisibleEntities` must be the same.
+#![cfg(feature = "bevy_camera")]
+
+use std::any::TypeId;
+
+use bevy_app::prelude::*;
+use bevy_asset::Assets;
+use bevy_camera::primitives::{Aabb, Sphere};
+use bevy_camera::visibility::{
+    NoCpuCulling, NoFrustumCulling, RenderLayers, ViewVisibility, Visibility, VisibilityClass,
+    VisibilityRange, VisibleEntities,
+};
+use bevy_camera::{Camera, Camera3d, CameraPlugin, OrthographicProjection, Projection};
+use bevy_ecs::prelude::*;
+use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
+use bevy_mesh::{Mesh, Mesh3d};
+use bevy_rtree::plugin::{
+    BevyVisibilityPlugin, Renderable, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin,
+};
+use bevy_rtree::scene::SceneRng;
+use bevy_transform::prelude::*;
+use glam::{Quat, Vec3, Vec3A};
+
+/// A headless App with Bevy's transforms and cameras, and with the index
+/// serving visibility if `ours`.
+fn app(ours: bool) -> App {
+    let mut app = App::new();
+    app.add_plugins((TransformPlugin, CameraPlugin))
+        .insert_resource(Assets::<Mesh>::default())
+        .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default());
+    if ours {
+        app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+    }
+    app
+}
+
+/// The twin Apps and the entities of the scene, in spawn order, in each.
+struct Twins {
+    bevy: App,
+    ours: App,
+    entities: Vec<[Entity; 2]>,
+    cameras: Vec<[Entity; 2]>,
+    rng: SceneRng,
+}
+
+impl Twins {
+    fn new(seed: u64) -> Twins {
+        Twins {
+            bevy: app(false),
+            ours: app(true),
+            entities: Vec::new(),
+            cameras: Vec::new(),
+            rng: SceneRng::new(seed),
+        }
+    }
+
+    /// Runs `f` on both worlds with the same random draws.
+    fn both<R>(&mut self, mut f: impl FnMut(&mut World, &mut SceneRng, usize) -> R) -> [R; 2] {
+        let state = self.rng.clone();
+        let a = f(self.bevy.world_mut(), &mut self.rng, 0);
+        self.rng = state;
+        let b = f(self.ours.world_mut(), &mut self.rng, 1);
+        [a, b]
+    }
+
+    fn spawn_entity(&mut self) {
+        let parent = (self.rng.below(8) == 0 && !self.entities.is_empty())
+            .then(|| self.entities[self.rng.below(self.entities.len())]);
+        let pair = self.both(|world, rng, side| {
+            let mut entity = world.spawn((random_transform(rng), random_visibility(rng)));
+            match rng.below(10) {
+                0 => {
+                    // No box: Bevy does not cull it.
+                    entity.insert(VisibilityClass([TypeId::of::<Mesh3d>()].into()));
+                }
+                1 => {
+                    entity.insert((
+                        Sphere {
+                            center: Vec3A::ZERO,
+                            radius: rng.range(0.1, 3.0),
+                        },
+                        VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                    ));
+                }
+                _ => {
+                    entity.insert((Mesh3d::default(), random_aabb(rng)));
+                }
+            }
+            match rng.below(12) {
+                0 => {
+                    entity.insert(NoFrustumCulling);
+                }
+                1 => {
+                    entity.insert(NoCpuCulling);
+                }
+                2 => {
+                    entity.insert(RenderLayers::layer(1));
+                }
+                3 => {
+                    entity.insert(RenderLayers::from_layers(&[0, 1]));
+                }
+                4 => {
+                    entity.insert(VisibilityRange::abrupt(0.0, rng.range(10.0, 80.0)));
+                }
+                _ => {}
+            }
+            if let Some(parent) = parent {
+                entity.insert(ChildOf(parent[side]));
+            }
+            entity.id()
+        });
+        self.entities.push(pair);
+    }
+
+    fn spawn_camera(&mut self, kind: usize) {
+        let pair = self.both(|world, rng, _| {
+            let eye = Vec3::new(
+                rng.range(-60.0, 60.0),
+                rng.range(0.0, 20.0),
+                rng.range(-60.0, 60.0),
+            );
+            let look = Quat::from_rotation_y(rng.range(0.0, 6.3)) * Quat::from_rotation_x(-0.2);
+            let mut camera = world.spawn((
+                Camera3d::default(),
+                Transform::from_translation(eye).with_rotation(look),
+            ));
+            match kind {
+                1 => {
+                    camera.insert(Camera {
+                        is_active: false,
+                        ..Camera::default()
+                    });
+                }
+                2 => {
+                    camera.insert(RenderLayers::layer(1));
+                }
+                3 => {
+                    camera.insert(NoCpuCulling);
+                }
+                4 => {
+                    camera.insert(Projection::Orthographic(OrthographicProjection {
+                        scale: 0.05,
+                        ..OrthographicProjection::default_3d()
+                    }));
+                }
+                _ => {}
+            }
+            camera.id()
+        });
+        self.cameras.push(pair);
+    }
+
+    /// One frame of random changes, the same in both worlds.
+    fn mutate(&mut self) {
+        let n = self.entities.len();
+        for _ in 0..n / 10 {
+            let i = self.rng.below(n);
+            let pair = self.entities[i];
+            let action = self.rng.below(20);
+            self.both(|world, rng, side| {
+                let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
+                    return;
+                };
+                match action {
+                    0..=9 => {
+                        if let Some(mut t) = entity.get_mut::<Transform>() {
+                            t.translation +=
+                                Vec3::new(rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0));
+                            t.rotate_y(rng.range(-0.3, 0.3));
+                        }
+                    }
+                    10..=11 => {
+                        entity.insert(random_transform(rng));
+                    }
+                    12 => {
+                        entity.insert(random_visibility(rng));
+                    }
+                    13 => {
+                        if entity.contains::<NoFrustumCulling>() {
+                            entity.remove::<NoFrustumCulling>();
+                        } else {
+                            entity.insert(NoFrustumCulling);
+                        }
+                    }
+                    14 => {
+                        if entity.contains::<NoCpuCulling>() {
+                            entity.remove::<NoCpuCulling>();
+                        } else {
+                            entity.insert(NoCpuCulling);
+                        }
+                    }
+                    15 => {
+                        entity.insert(random_aabb(rng));
+                    }
+                    16 => {
+                        entity.remove::<Aabb>();
+                    }
+                    17 => {
+                        // Bad input as Bevy sees it.
+                        let bad = [
+                            Transform::from_scale(Vec3::ZERO),
+                            Transform::from_xyz(f32::NAN, 0.0, 0.0),
+                        ][rng.below(2)];
+                        entity.insert(bad);
+                    }
+                    18 => {
+                        entity.insert(Aabb {
+                            center: Vec3A::ZERO,
+                            half_extents: Vec3A::new(
+                                -1.0,
+                                1.0,
+                                f32::NAN * rng.range(0.0, 1.0).signum(),
+                            ),
+                        });
+                    }
+                    _ => {
+                        entity.despawn();
+                    }
+                }
+            });
+        }
+        for _ in 0..n / 50 {
+            self.spawn_entity();
+        }
+        // The cameras move and turn.
+        for pair in self.cameras.clone() {
+            self.both(|world, rng, side| {
+                let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
+                t.translation += Vec3::new(rng.range(-3.0, 3.0), 0.0, rng.range(-3.0, 3.0));
+                t.rotate_y(rng.range(-0.4, 0.4));
+            });
+        }
+    }
+
+    /// Every entity's `ViewVisibility` and every camera's visible lists,
+    /// mapped to spawn order, are the same in both worlds.
+    fn check(&mut self, frame: usize) -> usize {
+        let mut visible = 0;
+        for (i, pair) in self.entities.iter().enumerate() {
+            let [a, b] = [&self.bevy, &self.ours]
+                .map(|app| app.world().get::<ViewVisibility>(pair[0]).map(|v| v.get()));
+            let _ = (a, b);
+            let bevy = self
+                .bevy
+                .world()
+                .get_entity(pair[0])
+                .ok()
+                .and_then(|e| e.get::<ViewVisibility>().map(|v| v.get()));
+            let ours = self
+                .ours
+                .world()
+                .get_entity(pair[1])
+                .ok()
+                .and_then(|e| e.get::<ViewVisibility>().map(|v| v.get()));
+            if bevy != ours {
+                let e = self.ours.world().entity(pair[1]);
+                eprintln!(
+                    "aabb {:?} t {:?} nfc {} ncc {} layers {:?} range {} sphere {:?} inherited {:?} parent {:?}",
+                    e.get::<Aabb>(),
+                    e.get::<GlobalTransform>(),
+                    e.contains::<NoFrustumCulling>(),
+                    e.contains::<NoCpuCulling>(),
+                    e.get::<RenderLayers>(),
+                    e.contains::<VisibilityRange>(),
+                    e.get::<Sphere>(),
+                    e.get::<bevy_camera::visibility::InheritedVisibility>(),
+                    e.get::<ChildOf>()
+                );
+                let index = self.ours.world().resource::<SpatialIndex<Renderable>>();
+                eprintln!(
+                    "indexed {:?} unindexed {}",
+                    index.get(pair[1]),
+                    index.unindexed().len()
+                );
+            }
+            assert_eq!(bevy, ours, "frame {frame}: ViewVisibility of entity {i}");
+            visible += usize::from(bevy == Some(true));
+        }
+        let order = |app: &App, side: usize| {
+            let index: std::collections::HashMap<Entity, usize> = self
+                .entities
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (p[side], i))
+                .collect();
+            self.cameras
+                .iter()
+                .map(|cam| {
+                    let lists = app.world().get::<VisibleEntities>(cam[side]).unwrap();
+                    let list = lists.get(TypeId::of::<Mesh3d>());
+                    assert!(
+                        list.is_sorted(),
+                        "sorted by Entity, as Bevy's diffing needs"
+                    );
+                    let mut spawned: Vec<usize> = list.iter().map(|e| index[e]).collect();
+                    spawned.sort_unstable();
+                    spawned
+                })
+                .collect::<Vec<_>>()
+        };
+        let (bevy_lists, our_lists) = (order(&self.bevy, 0), order(&self.ours, 1));
+        for (c, (b, o)) in bevy_lists.iter().zip(&our_lists).enumerate() {
+            assert_eq!(b, o, "frame {frame}: camera {c}'s visible entities");
+        }
+        visible
+    }
+
+    fn update(&mut self) {
+        self.bevy.update();
+        self.ours.update();
+    }
+}
+
+fn random_transform(rng: &mut SceneRng) -> Transform {
+    let at = Vec3::new(
+        rng.range(-100.0, 100.0),
+        rng.range(-5.0, 30.0),
+        rng.range(-100.0, 100.0),
+    );
+    let turn = Quat::from_euler(
+        glam::EulerRot::YXZ,
+        rng.range(0.0, 6.3),
+        rng.range(-1.0, 1.0),
+        0.0,
+    );
+    let scale = if rng.below(4) == 0 {
+        Vec3::new(
+            rng.range(0.2, 3.0),
+            rng.range(0.2, 3.0),
+            rng.range(0.2, 3.0),
+        )
+    } else {
+        Vec3::ONE
+    };
+    Transform {
+        translation: at,
+        rotation: turn,
+        scale,
+    }
+}
+
+fn random_aabb(rng: &mut SceneRng) -> Aabb {
+    let center = Vec3A::new(
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+    );
+    let half = Vec3A::new(
+        rng.range(0.0, 3.0),
+        rng.range(0.0, 3.0),
+        rng.range(0.0, 3.0),
+    );
+    Aabb {
+        center,
+        half_extents: half,
+    }
+}
+
+fn random_visibility(rng: &mut SceneRng) -> Visibility {
+    [
+        Visibility::Inherited,
+        Visibility::Inherited,
+        Visibility::Inherited,
+        Visibility::Hidden,
+        Visibility::Visible,
+    ][rng.below(5)]
+}
+
+/// Random scenes of a few thousand entities, five kinds of camera and
+/// hundreds of frames of moves, teleports, toggles and respawns.
+#[test]
+fn cameras_see_what_bevy_sees_every_frame() {
+    for seed in 0..3 {
+        let mut twins = Twins::new(seed);
+        for _ in 0..2_000 {
+            twins.spawn_entity();
+        }
+        for kind in [0, 0, 1, 2, 3, 4] {
+            twins.spawn_camera(kind);
+        }
+        let mut seen = 0;
+        for frame in 0..60 {
+            twins.update();
+            seen += twins.check(frame);
+            twins.mutate();
+        }
+        assert!(seen > 10_000, "the cameras see enough to compare: {seen}");
+        let index = twins.ours.world().resource::<SpatialIndex<Renderable>>();
+        index.validate().unwrap();
+        assert!(
+            index.len() > 1_000,
+            "the renderables are indexed: {}",
+            index.len()
+        );
+        let diagnostics = twins.ours.world().resource::<SpatialDiagnostics>();
+        assert!(diagnostics.culling.runs > 0);
+    }
+}
