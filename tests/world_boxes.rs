@@ -108,6 +108,88 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(3000))]
+
+    /// `Aabb::from_oriented`, the `f32` form for Bevy's centre and half
+    /// extents: every exact corner image lies in it, far out too, and each
+    /// face lies within 32 units of roundoff of the magnitudes of the box
+    /// the exact images span.
+    #[test]
+    fn oriented_world_boxes_contain_every_exact_corner_and_stay_tight(
+        (transform, local) in transform_and_box(),
+    ) {
+        let centre = (local.min + local.max) * 0.5;
+        let half = (local.max - local.min) * 0.5;
+        // The exact box of Bevy's convention is centre ± half as given.
+        let corners: Vec<Vec3> = (0..8)
+            .map(|i| {
+                let sign = Vec3::new(
+                    if i & 1 == 0 { -1.0 } else { 1.0 },
+                    if i & 2 == 0 { -1.0 } else { 1.0 },
+                    if i & 4 == 0 { -1.0 } else { 1.0 },
+                );
+                centre + sign * half
+            })
+            .collect();
+        let world = Aabb::from_oriented(centre, half, &transform).unwrap();
+        for axis in 0..3 {
+            let images: Vec<f64> = corners
+                .iter()
+                .map(|&c| {
+                    // The corner in f64 from the f32 centre and half extent,
+                    // so that its own rounding to f32 does not enter.
+                    let sign = (c - centre).signum();
+                    let exact = [0, 1, 2].map(|k| f64::from(centre[k]) + f64::from(sign[k]) * f64::from(half[k]));
+                    let m = transform.matrix3;
+                    let cols = [m.x_axis, m.y_axis, m.z_axis];
+                    f64::from(transform.translation[axis])
+                        + (0..3).map(|k| f64::from(cols[k][axis]) * exact[k]).sum::<f64>()
+                })
+                .collect();
+            let lo = images.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = images.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            prop_assert!(f64::from(world.min[axis]) <= lo && hi <= f64::from(world.max[axis]),
+                "axis {axis}: [{lo}, {hi}] outside {world:?}");
+            let scale = f64::from(transform.translation.abs().max_element())
+                + f64::from((transform.matrix3.abs() * centre.abs()).max_element())
+                + (hi - lo);
+            let allowed = 32.0 * f64::from(f32::EPSILON) * scale + 1e-30;
+            prop_assert!(lo - f64::from(world.min[axis]) <= allowed, "min {axis}: {lo} vs {world:?}");
+            prop_assert!(f64::from(world.max[axis]) - hi <= allowed, "max {axis}: {hi} vs {world:?}");
+        }
+    }
+}
+
+#[test]
+fn oriented_boxes_refuse_negative_or_nan_extents_and_unusable_transforms() {
+    let ok = Affine3A::from_translation(Vec3::X);
+    for half in [
+        Vec3::new(-1.0, 1.0, 1.0),
+        Vec3::new(f32::NAN, 1.0, 1.0),
+        Vec3::INFINITY,
+    ] {
+        assert_eq!(
+            Aabb::from_oriented(Vec3::ZERO, half, &ok),
+            Err(SpatialError::InvalidBox)
+        );
+    }
+    let nan = Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0));
+    assert_eq!(
+        Aabb::from_oriented(Vec3::ZERO, Vec3::ONE, &nan),
+        Err(SpatialError::InvalidBox)
+    );
+    let beyond = Affine3A::from_translation(Vec3::splat(2e15));
+    assert_eq!(
+        Aabb::from_oriented(Vec3::ZERO, Vec3::ONE, &beyond),
+        Err(SpatialError::InvalidBox)
+    );
+    assert!(
+        Aabb::from_oriented(Vec3::ZERO, Vec3::ZERO, &ok).is_ok(),
+        "a point is a box"
+    );
+}
+
 /// A pure translation adds in `f32`, as the entity's other points move.
 #[test]
 fn a_pure_translation_adds_in_f32() {

@@ -371,7 +371,7 @@ pub(crate) type CullItem = (u32, u64);
 /// separating-axis precomputation.
 pub(crate) struct PreparedView {
     frustum: Frustum,
-    active_planes: u8,
+    pub(crate) active_planes: u8,
     sat: Option<FrustumSat>,
 }
 
@@ -395,7 +395,7 @@ impl PreparedView {
     /// lane the planes it is not yet fully inside (with `INSIDE`; without,
     /// every lane keeps all of `planes`).
     #[inline]
-    fn test_lanes<const W: usize, const INSIDE: bool>(
+    pub(crate) fn test_lanes<const W: usize, const INSIDE: bool>(
         &self,
         node: &Node<W>,
         planes: u8,

@@ -1,7 +1,7 @@
 //! Bevy's camera visibility from the index: the tree gives each camera its
 //! candidates, and Bevy's own tests decide what the tree cannot prove.
 
-use std::ops::ControlFlow;
+use std::any::TypeId;
 
 use bevy_camera::Camera;
 use bevy_camera::primitives::{Aabb as BevyAabb, Frustum as BevyFrustum, Sphere};
@@ -10,15 +10,15 @@ use bevy_camera::visibility::{
     ViewVisibility, VisibilityClass, VisibilityRange, VisibleEntities, VisibleEntityRanges,
 };
 use bevy_ecs::prelude::*;
+use bevy_ecs::query::QueryData;
 use bevy_transform::prelude::GlobalTransform;
 use glam::Vec3;
 
 use super::Renderable;
-use crate::geometry::predicates::frustum_contains;
 use crate::geometry::{Frustum, HalfSpace};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
-use crate::query::{CullMode, QueryWorkspace};
+use crate::query::QueryWorkspace;
 
 /// What Bevy's culling reads of an entity (the same query as its own).
 type Culled<'a> = (
@@ -34,6 +34,8 @@ type Culled<'a> = (
     Has<VisibilityRange>,
 );
 
+type CulledItem<'w, 's> = <Culled<'static> as QueryData>::Item<'w, 's>;
+
 /// The entities of Bevy's culling set that are not in the tree by
 /// construction: no `Aabb`, or `NoFrustumCulling`.
 type OutsideTheTree = (
@@ -44,29 +46,56 @@ type OutsideTheTree = (
     Or<(Without<BevyAabb>, With<NoFrustumCulling>)>,
 );
 
-/// One camera as Bevy's culling sees it.
-struct View<'a> {
-    entity: Entity,
-    frustum: &'a BevyFrustum,
-    mask: &'a RenderLayers,
+/// Cameras decided in one pass over the entities (two bits each in a
+/// `u16` per entity: candidate, and proven inside).
+const VIEWS_PER_PASS: usize = 8;
+
+/// One active camera as Bevy's culling sees it, and what it saw.
+struct View {
+    camera: Entity,
+    frustum: BevyFrustum,
+    mask: RenderLayers,
     /// The camera has `NoCpuCulling`: no frustum test at all.
     no_culling: bool,
+    /// Its candidates from the tree, and whether the tree proved each
+    /// inside every plane Bevy tests (empty for `no_culling`).
+    candidates: Vec<(Entity, bool)>,
+    /// Its visible entities per visibility class.
+    visible: Vec<(TypeId, Vec<Entity>)>,
+}
+
+impl View {
+    fn push(&mut self, entity: Entity, class: TypeId) {
+        match self.visible.iter_mut().find(|(c, _)| *c == class) {
+            Some((_, list)) => list.push(entity),
+            None => self.visible.push((class, vec![entity])),
+        }
+    }
 }
 
 /// Scratch kept from frame to frame.
 #[derive(Default)]
 pub(super) struct Scratch {
     workspace: QueryWorkspace,
-    /// This camera's candidates from the tree, and whether the tree proved
-    /// each inside every plane.
-    candidates: Vec<(Entity, bool)>,
+    views: Vec<View>,
+    /// Per entity index, for a pass over all entities: two bits per view
+    /// of the pass (candidate, proven inside).
+    marks: Vec<u16>,
+    /// The entities outside the tree, tested by every view.
+    one_by_one: Vec<Entity>,
 }
 
 /// Replaces Bevy's `check_visibility_cpu_culling`, in
 /// `VisibilitySystems::CheckVisibility`.
+///
+/// Each camera's candidates come from the tree; then, where they are a
+/// large part of all entities, the cameras are decided together in one
+/// pass over the entities in storage order (as Bevy's own loop reads
+/// them, once for all cameras instead of once per camera); otherwise each
+/// candidate is looked up by its `Entity`.
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub(super) fn check_visibility_from_index(
-    mut views: Query<(
+    mut cameras: Query<(
         Entity,
         &mut VisibleEntities,
         &BevyFrustum,
@@ -84,48 +113,143 @@ pub(super) fn check_visibility_from_index(
 ) {
     let ranges = ranges.as_deref();
     let scratch = &mut *scratch;
-    let mut culled_views = 0;
-    for (entity, mut visible, frustum, mask, camera, no_culling, transform) in &mut views {
-        if !camera.is_active {
+    let mut spare: Vec<View> = std::mem::take(&mut scratch.views);
+    let mut views = Vec::new();
+    for (camera, _, frustum, mask, state, no_culling, transform) in &cameras {
+        if !state.is_active {
             continue;
         }
-        let view = View {
-            entity,
-            frustum,
-            mask: mask.unwrap_or_default(),
+        let mut view = spare.pop().unwrap_or_else(|| View {
+            camera,
+            frustum: *frustum,
+            mask: RenderLayers::default(),
             no_culling,
-        };
-        visible.clear_all();
-        if no_culling {
-            // Every entity passes the frustum: Bevy's loop over all of them.
-            for item in &mut culled {
-                decide(&view, item, true, ranges, &mut visible);
-            }
-        } else {
-            culled_views += 1;
+            candidates: Vec::new(),
+            visible: Vec::new(),
+        });
+        view.camera = camera;
+        view.frustum = *frustum;
+        view.mask = mask.cloned().unwrap_or_default();
+        view.no_culling = no_culling;
+        view.candidates.clear();
+        view.visible.iter_mut().for_each(|(_, list)| list.clear());
+        if !no_culling {
             let eye = transform.map_or(Vec3::ZERO, GlobalTransform::translation);
-            candidates(&index, frustum, eye, scratch);
-            for &(entity, inside) in &scratch.candidates {
-                if let Ok(item) = culled.get_mut(entity) {
-                    decide(&view, item, inside, ranges, &mut visible);
-                }
-            }
-            let one_by_one = outside_the_tree.iter().chain(index.unindexed());
-            for entity in one_by_one {
-                if let Ok(item) = culled.get_mut(entity) {
-                    decide(&view, item, false, ranges, &mut visible);
-                }
-            }
+            candidates(
+                &index,
+                frustum,
+                eye,
+                &mut scratch.workspace,
+                &mut view.candidates,
+            );
         }
-        // Sorted, as Bevy's diffing of visible lists needs.
-        for list in visible.entities.values_mut() {
-            list.sort_unstable();
-            list.dedup();
+        views.push(view);
+    }
+    let entities = culled.iter().len();
+    let candidates: usize = views.iter().map(|v| v.candidates.len()).sum();
+    let mut one_by_one = std::mem::take(&mut scratch.one_by_one);
+    one_by_one.clear();
+    one_by_one.extend(outside_the_tree.iter().chain(index.unindexed()));
+    let any_all = views.iter().any(|v| v.no_culling);
+    // A pass over every entity costs a few nanoseconds per entity; a look-up
+    // by `Entity` some tens per candidate.
+    if any_all || candidates * 8 > entities {
+        for pass in views.chunks_mut(VIEWS_PER_PASS) {
+            decide_in_storage_order(pass, &one_by_one, &mut culled, ranges, &mut scratch.marks);
+        }
+    } else {
+        for view in &mut views {
+            let candidates = std::mem::take(&mut view.candidates);
+            for &(entity, proven) in &candidates {
+                if let Ok(mut item) = culled.get_mut(entity) {
+                    decide(view, &mut item, proven, ranges);
+                }
+            }
+            for &entity in &one_by_one {
+                if let Ok(mut item) = culled.get_mut(entity) {
+                    decide(view, &mut item, false, ranges);
+                }
+            }
+            view.candidates = candidates;
         }
     }
+    let culled_views = views.iter().filter(|v| !v.no_culling).count();
+    for view in &mut views {
+        let Ok((_, mut visible, ..)) = cameras.get_mut(view.camera) else {
+            continue;
+        };
+        visible.clear_all();
+        for (class, list) in &mut view.visible {
+            // Sorted, as Bevy's diffing of visible lists needs.
+            list.sort_unstable();
+            list.dedup();
+            std::mem::swap(visible.get_mut(*class), list);
+        }
+    }
+    scratch.views = views;
+    scratch.one_by_one = one_by_one;
+    scratch.views.append(&mut spare);
     if culled_views > 0 {
         let ws = &mut scratch.workspace;
         sink.add(|d| d.culling.record_workspace(culled_views, ws));
+    }
+}
+
+/// Decides the views of one pass together, walking the entities in
+/// storage order and testing each against the views that have it as a
+/// candidate (every view that culls nothing, and every view for the
+/// entities outside the tree).
+fn decide_in_storage_order(
+    views: &mut [View],
+    one_by_one: &[Entity],
+    culled: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
+    ranges: Option<&VisibleEntityRanges>,
+    marks: &mut Vec<u16>,
+) {
+    const CANDIDATE: u16 = 0b01;
+    const PROVEN: u16 = 0b10;
+    let mut mark = |entity: Entity, bits: u16| {
+        let at = entity.index_u32() as usize;
+        if marks.len() <= at {
+            marks.resize(at + 1, 0);
+        }
+        marks[at] |= bits;
+    };
+    let mut all = 0u16;
+    for (v, view) in views.iter().enumerate() {
+        let shift = 2 * v;
+        if view.no_culling {
+            all |= CANDIDATE << shift;
+        }
+        for &(entity, proven) in &view.candidates {
+            mark(
+                entity,
+                (CANDIDATE | if proven { PROVEN } else { 0 }) << shift,
+            );
+        }
+        for &entity in one_by_one {
+            mark(entity, CANDIDATE << shift);
+        }
+    }
+    for mut item in culled.iter_mut() {
+        let at = item.0.index_u32() as usize;
+        let mut bits = all | marks.get(at).copied().unwrap_or(0);
+        while bits != 0 {
+            let v = bits.trailing_zeros() as usize / 2;
+            let proven = bits >> (2 * v) & PROVEN != 0;
+            bits &= !(0b11 << (2 * v));
+            decide(&mut views[v], &mut item, proven, ranges);
+        }
+    }
+    // Cleared mark by mark, not by walking the entities: a marked entity
+    // the walk did not meet must not carry its marks into the next pass.
+    for view in views.iter() {
+        for &(entity, _) in &view.candidates {
+            marks[entity.index_u32() as usize] = 0;
+        }
+    }
+    for &entity in one_by_one {
+        marks[entity.index_u32() as usize] = 0;
     }
 }
 
@@ -133,16 +257,15 @@ pub(super) fn check_visibility_from_index(
 /// makes it; `proven` skips the frustum tests for an entity the tree has
 /// shown to lie inside every plane they test.
 fn decide(
-    view: &View<'_>,
-    item: <Culled<'_> as bevy_ecs::query::QueryData>::Item<'_, '_>,
+    view: &mut View,
+    item: &mut CulledItem<'_, '_>,
     proven: bool,
     ranges: Option<&VisibleEntityRanges>,
-    visible: &mut VisibleEntities,
 ) {
     let (
         entity,
         inherited,
-        mut view_visibility,
+        view_visibility,
         class,
         mask,
         aabb,
@@ -151,13 +274,14 @@ fn decide(
         no_frustum_culling,
         has_range,
     ) = item;
+    let entity = *entity;
     if !inherited.get() || !view.mask.intersects(mask.unwrap_or_default()) {
         return;
     }
-    if has_range && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.entity)) {
+    if *has_range && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)) {
         return;
     }
-    if !proven && !no_frustum_culling && !view.no_culling {
+    if !proven && !*no_frustum_culling && !view.no_culling {
         if let Some(aabb) = aabb {
             let world_from_local = transform.affine();
             let sphere = Sphere {
@@ -180,7 +304,7 @@ fn decide(
     view_visibility.set_visible();
     if let Some(class) = class {
         for &id in class.iter() {
-            visible.push(entity, id);
+            view.push(entity, id);
         }
     }
 }
@@ -194,9 +318,9 @@ fn candidates(
     index: &SpatialIndex<Renderable>,
     frustum: &BevyFrustum,
     eye: Vec3,
-    scratch: &mut Scratch,
+    ws: &mut QueryWorkspace,
+    out: &mut Vec<(Entity, bool)>,
 ) {
-    scratch.candidates.clear();
     let tree = index.tree();
     let Some(bounds) = tree.bounds() else { return };
     let reach =
@@ -207,20 +331,12 @@ fn candidates(
     ) else {
         // A frustum Bevy's tests cannot decide either (NaN planes): every
         // entry is a candidate, and Bevy's tests say what they say.
-        tree.iter()
-            .for_each(|(_, entity, _)| scratch.candidates.push((entity, false)));
+        out.extend(tree.iter().map(|(_, entity, _)| (entity, false)));
         return;
     };
-    let candidates = &mut scratch.candidates;
-    tree.visit_visible(
-        std::slice::from_ref(&loose),
-        CullMode::Conservative,
-        &mut scratch.workspace,
-        |_, entity, aabb| {
-            candidates.push((entity, frustum_contains(&tight, aabb)));
-            ControlFlow::Continue(())
-        },
-    );
+    tree.visit_visible_proving(&loose, &tight, ws, |entity, proven| {
+        out.push((entity, proven))
+    });
 }
 
 /// Bevy's planes but the far one, re-based on `eye` and moved outward

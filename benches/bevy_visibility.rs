@@ -1,0 +1,355 @@
+//! Bevy's own visibility step against the index serving it, on twin Apps:
+//! the same scene, the same moves, one App running Bevy's
+//! `check_visibility_cpu_culling`, the other `BevyVisibilityPlugin`. Each
+//! App times its whole visibility step (for the index: its sync of this
+//! frame's moves, its repair and the culling) with marker systems around
+//! it; the two run in alternating blocks of frames, and each case reports
+//! the median ratio of neighbouring blocks (Bevy's time ÷ ours).
+//!
+//! `cargo bench --bench bevy_visibility --features bevy_camera`
+//! (add `multi_threaded` for Bevy's parallel executor; `-- --quick` for a
+//! short run).
+
+use std::any::TypeId;
+use std::time::Instant;
+
+use bevy_app::prelude::*;
+use bevy_asset::Assets;
+use bevy_camera::primitives::Aabb;
+use bevy_camera::visibility::{ViewVisibility, VisibilitySystems, VisibleEntities};
+use bevy_camera::{
+    Camera3d, CameraPlugin, OrthographicProjection, PerspectiveProjection, Projection, ScalingMode,
+};
+use bevy_ecs::prelude::*;
+use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
+use bevy_mesh::{Mesh, Mesh3d};
+use bevy_rtree::plugin::{
+    BevyVisibilityPlugin, RenderableSyncSystems, SpatialIndexPlugin, SpatialIndexSystems,
+};
+use bevy_rtree::scene::{SceneRng, TownScene};
+use bevy_transform::TransformSystems;
+use bevy_transform::prelude::*;
+use glam::{EulerRot, Quat, Vec3, Vec3A};
+
+/// When this frame's visibility step started, and how long the last took.
+#[derive(Resource, Default)]
+struct StepTimer {
+    start: Option<Instant>,
+    last_us: f64,
+}
+
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+struct StepStart;
+
+fn start_step(mut timer: ResMut<StepTimer>) {
+    timer.start = Some(Instant::now());
+}
+
+fn stop_step(mut timer: ResMut<StepTimer>) {
+    if let Some(start) = timer.start.take() {
+        timer.last_us = start.elapsed().as_secs_f64() * 1e6;
+    }
+}
+
+/// A mover: a fresh tenth (or hundredth) of them moves each frame.
+#[derive(Component)]
+struct Mover {
+    step: Vec3,
+    slot: u32,
+}
+
+/// The scene's movers and cameras, as a game would move them: through
+/// queries.
+#[derive(Resource)]
+struct Motion {
+    frame: u32,
+    /// One entity in `period` moves each frame.
+    period: u32,
+    /// Camera yaw per frame, in radians.
+    turn: f32,
+}
+
+fn move_entities(mut motion: ResMut<Motion>, mut movers: Query<(&Mover, &mut Transform)>) {
+    motion.frame += 1;
+    let (frame, period) = (motion.frame, motion.period);
+    for (mover, mut transform) in &mut movers {
+        if mover.slot % period == frame % period {
+            transform.translation += mover.step;
+        }
+    }
+}
+
+fn turn_cameras(motion: Res<Motion>, mut cameras: Query<&mut Transform, With<Camera3d>>) {
+    for mut transform in &mut cameras {
+        transform.rotate_y(motion.turn);
+    }
+}
+
+/// A headless App with Bevy's cameras and transforms; the index serves
+/// visibility if `ours`.
+fn app(ours: bool) -> App {
+    let mut app = App::new();
+    app.add_plugins((TransformPlugin, CameraPlugin))
+        .insert_resource(Assets::<Mesh>::default())
+        .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
+        .init_resource::<StepTimer>()
+        .add_systems(Update, (move_entities, turn_cameras));
+    if ours {
+        app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
+            .configure_sets(
+                PostUpdate,
+                StepStart
+                    .after(TransformSystems::Propagate)
+                    .after(VisibilitySystems::CalculateBounds)
+                    .after(VisibilitySystems::VisibilityPropagate)
+                    .before(RenderableSyncSystems),
+            )
+            .add_systems(
+                PostUpdate,
+                (
+                    start_step.in_set(StepStart),
+                    stop_step
+                        .after(VisibilitySystems::CheckVisibility)
+                        .after(SpatialIndexSystems::Maintain),
+                ),
+            );
+    } else {
+        app.configure_sets(
+            PostUpdate,
+            StepStart
+                .after(TransformSystems::Propagate)
+                .after(VisibilitySystems::CalculateBounds)
+                .after(VisibilitySystems::VisibilityPropagate)
+                .before(VisibilitySystems::CheckVisibility),
+        )
+        .add_systems(
+            PostUpdate,
+            (
+                start_step.in_set(StepStart),
+                stop_step.after(VisibilitySystems::CheckVisibility),
+            ),
+        );
+    }
+    app
+}
+
+/// One case: what to spawn and how it moves.
+struct Case {
+    name: &'static str,
+    spawn: fn(&mut World, u64),
+    /// One entity in `period` moves each frame.
+    period: u32,
+    turn: f32,
+}
+
+/// The standard town as Bevy meshes: each box a mesh with its half
+/// extents as `Aabb`, at a random yaw; plus `cameras` perspective cameras
+/// at the standard eye, facing apart.
+fn town(world: &mut World, seed: u64, cameras: usize) {
+    let scene = TownScene::new(TownScene::STANDARD_COUNT, seed);
+    let mut rng = SceneRng::new(seed ^ 0x70_57);
+    let entities: Vec<_> = scene
+        .boxes()
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let half = (b.max - b.min) * 0.5;
+            let yaw = Quat::from_rotation_y(rng.range(0.0, std::f32::consts::TAU));
+            let step = Vec3::new(rng.range(-0.1, 0.1), 0.0, rng.range(-0.1, 0.1));
+            (
+                Mesh3d::default(),
+                Aabb {
+                    center: Vec3A::ZERO,
+                    half_extents: half.into(),
+                },
+                Transform::from_translation((b.min + b.max) * 0.5).with_rotation(yaw),
+                Mover {
+                    step,
+                    slot: i as u32,
+                },
+            )
+        })
+        .collect();
+    world.spawn_batch(entities);
+    for c in 0..cameras {
+        let yaw = std::f32::consts::TAU * c as f32 / cameras as f32;
+        world.spawn((
+            Camera3d::default(),
+            Projection::Perspective(PerspectiveProjection {
+                fov: 60f32.to_radians(),
+                aspect_ratio: 16.0 / 9.0,
+                near: 0.1,
+                far: 500.0,
+                ..PerspectiveProjection::default()
+            }),
+            Transform::from_translation(TownScene::eye()).with_rotation(Quat::from_euler(
+                EulerRot::YXZ,
+                yaw,
+                -0.17,
+                0.0,
+            )),
+        ));
+    }
+}
+
+/// A large 2D-like map: `count` flat tiles over a square 20 km wide, and
+/// an orthographic camera looking down on about 2 % of it.
+fn large_map(world: &mut World, seed: u64) {
+    const COUNT: usize = 1_000_000;
+    const SIDE: f32 = 20_000.0;
+    let mut rng = SceneRng::new(seed);
+    let tiles: Vec<_> = (0..COUNT)
+        .map(|i| {
+            let at = Vec3::new(rng.range(0.0, SIDE), 0.0, rng.range(0.0, SIDE));
+            let half = Vec3::new(rng.range(0.5, 5.0), 0.5, rng.range(0.5, 5.0));
+            let step = Vec3::new(rng.range(-0.5, 0.5), 0.0, rng.range(-0.5, 0.5));
+            (
+                Mesh3d::default(),
+                Aabb {
+                    center: Vec3A::ZERO,
+                    half_extents: half.into(),
+                },
+                Transform::from_translation(at),
+                Mover {
+                    step,
+                    slot: i as u32,
+                },
+            )
+        })
+        .collect();
+    world.spawn_batch(tiles);
+    // Looking straight down on a 2,800 m square: 2 % of the map.
+    world.spawn((
+        Camera3d::default(),
+        Projection::Orthographic(OrthographicProjection {
+            scaling_mode: ScalingMode::Fixed {
+                width: 2_800.0,
+                height: 2_800.0,
+            },
+            near: 0.0,
+            far: 1_000.0,
+            ..OrthographicProjection::default_3d()
+        }),
+        Transform::from_xyz(SIDE / 2.0, 500.0, SIDE / 2.0)
+            .looking_at(Vec3::new(SIDE / 2.0, 0.0, SIDE / 2.0), Vec3::NEG_Z),
+    ));
+}
+
+/// Runs `frames` frames and returns the median step time in µs.
+fn block(app: &mut App, frames: usize) -> f64 {
+    let mut times: Vec<f64> = (0..frames)
+        .map(|_| {
+            app.update();
+            app.world().resource::<StepTimer>().last_us
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+/// What both Apps made of the last frame: the visible count and whether
+/// every `ViewVisibility` and camera list is the same.
+fn same_answers(bevy: &mut App, ours: &mut App) -> (usize, bool) {
+    let visible = |app: &mut App| -> Vec<bool> {
+        let mut query = app.world_mut().query::<&ViewVisibility>();
+        query.iter(app.world()).map(|v| v.get()).collect()
+    };
+    let lists = |app: &mut App| -> Vec<usize> {
+        let mut query = app.world_mut().query::<&VisibleEntities>();
+        query
+            .iter(app.world())
+            .map(|v| v.get(TypeId::of::<Mesh3d>()).len())
+            .collect()
+    };
+    let (a, b) = (visible(bevy), visible(ours));
+    let count = a.iter().filter(|&&v| v).count();
+    (count, a == b && lists(bevy) == lists(ours))
+}
+
+fn run(case: &Case, rounds: usize, frames: usize) {
+    let mut bevy = app(false);
+    let mut ours = app(true);
+    for app in [&mut bevy, &mut ours] {
+        (case.spawn)(app.world_mut(), 0x5EED);
+        app.insert_resource(Motion {
+            frame: 0,
+            period: case.period,
+            turn: case.turn,
+        });
+        // The first frames build everything (and load the tree).
+        for _ in 0..3 {
+            app.update();
+        }
+    }
+    let (visible, same) = same_answers(&mut bevy, &mut ours);
+    assert!(same, "{}: the twin Apps disagree", case.name);
+    let (mut ratios, mut bevy_us, mut our_us) = (Vec::new(), Vec::new(), Vec::new());
+    for round in 0..rounds {
+        let (b, o) = if round % 2 == 0 {
+            let b = block(&mut bevy, frames);
+            (b, block(&mut ours, frames))
+        } else {
+            let o = block(&mut ours, frames);
+            (block(&mut bevy, frames), o)
+        };
+        ratios.push(b / o);
+        bevy_us.push(b);
+        our_us.push(o);
+    }
+    let (_, same) = same_answers(&mut bevy, &mut ours);
+    assert!(same, "{}: the twin Apps disagree", case.name);
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (lo, hi) = (
+        ratios.iter().copied().fold(f64::INFINITY, f64::min),
+        ratios.iter().copied().fold(0.0, f64::max),
+    );
+    println!(
+        "| {} | {:.2} | {:.2} | {:.2} ({:.2}–{:.2}) | {} |",
+        case.name,
+        median(&mut bevy_us) / 1e3,
+        median(&mut our_us) / 1e3,
+        median(&mut ratios),
+        lo,
+        hi,
+        visible
+    );
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let (rounds, frames) = if quick { (3, 5) } else { (9, 15) };
+    let cases = [
+        Case {
+            name: "town 100,000, 10 % moving, 1 camera",
+            spawn: |w, s| town(w, s, 1),
+            period: 10,
+            turn: std::f32::consts::TAU / 60.0,
+        },
+        Case {
+            name: "town 100,000, 10 % moving, 4 cameras",
+            spawn: |w, s| town(w, s, 4),
+            period: 10,
+            turn: std::f32::consts::TAU / 60.0,
+        },
+        Case {
+            name: "map 1,000,000, 1 % moving, 2 % in view",
+            spawn: large_map,
+            period: 100,
+            turn: 0.0,
+        },
+    ];
+    println!("| case | Bevy (ms) | bevy_rtree (ms) | speed-up, median (range) | visible |");
+    println!("|---|---:|---:|---:|---:|");
+    let filter: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    for case in &cases {
+        if filter.iter().all(|f| case.name.contains(f.as_str())) {
+            run(case, rounds, frames);
+        }
+    }
+}

@@ -1,0 +1,149 @@
+//! Culling with proof: the entries a frustum may see, and which of them a
+//! smaller frustum contains, in one traversal (for serving another
+//! engine's culling, whose exact test then decides only the unproven).
+
+use super::QueryWorkspace;
+use super::frustum::{CullMode, PreparedView};
+use crate::geometry::Frustum;
+use crate::tree::RTree;
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Calls `visit(key, contained)` for every entry that the conservative
+    /// test of `loose` accepts (SEMANTICS S7), with `contained` true iff
+    /// `tight` contains its box (every corner strictly inside every plane,
+    /// as [`frustum_contains`](crate::geometry::predicates::frustum_contains)
+    /// decides), in no particular order.
+    ///
+    /// `tight` must lie within `loose` plane by plane (same normals, offsets
+    /// no larger): then a contained box is also accepted, and a node that
+    /// `tight` contains is reported whole, as contained, without a test.
+    #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
+    pub(crate) fn visit_visible_proving(
+        &self,
+        loose: &Frustum,
+        tight: &Frustum,
+        ws: &mut QueryWorkspace,
+        mut visit: impl FnMut(K, bool),
+    ) {
+        let loose = PreparedView::new(loose, CullMode::Conservative);
+        let tight = PreparedView::new(tight, CullMode::Conservative);
+        if self.is_empty() {
+            return;
+        }
+        // Items: a node and the planes of `tight` it is not yet inside.
+        ws.cull_stack.clear();
+        ws.cull_stack
+            .push((self.root(), u64::from(tight.active_planes)));
+        while let Some((index, tight_planes)) = ws.cull_stack.pop() {
+            if tight_planes == 0 {
+                self.report_contained(index, ws, &mut visit);
+                continue;
+            }
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            let (seen, _) = loose.test_lanes::<W, false>(node, loose.active_planes);
+            let (_, remaining) = tight.test_lanes::<W, true>(node, tight_planes as u8);
+            let mut lanes = seen & node.used_lanes();
+            if node.is_leaf() {
+                ws.stats.entries_tested += node.len() as u64;
+            }
+            while lanes != 0 {
+                let lane = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                if node.is_leaf() {
+                    visit(self.key_of(node.child[lane]), remaining[lane] == 0);
+                } else {
+                    ws.cull_stack
+                        .push((node.child[lane], u64::from(remaining[lane])));
+                }
+            }
+        }
+    }
+
+    /// Reports every entry below `index` as contained.
+    #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
+    fn report_contained(
+        &self,
+        index: u32,
+        ws: &mut QueryWorkspace,
+        visit: &mut impl FnMut(K, bool),
+    ) {
+        let mut stack = std::mem::take(&mut ws.stack);
+        stack.clear();
+        stack.push(index);
+        while let Some(index) = stack.pop() {
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            if node.is_leaf() {
+                for &proxy in &node.child[..node.len()] {
+                    visit(self.key_of(proxy), true);
+                }
+            } else {
+                stack.extend_from_slice(&node.child[..node.len()]);
+            }
+        }
+        ws.stack = stack;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Quat, Vec3};
+
+    use crate::geometry::predicates::{frustum_conservative, frustum_contains};
+    use crate::geometry::{Aabb, Frustum, HalfSpace};
+    use crate::query::QueryWorkspace;
+    use crate::scene::{SceneRng, TownScene};
+
+    /// Reported exactly the entries the loose frustum's conservative test
+    /// accepts, each with the scalar containment test's answer for the
+    /// tight frustum, on the standard town with views all around it.
+    #[test]
+    fn candidates_and_proofs_agree_with_the_scalar_predicates() {
+        let scene = TownScene::new(20_000, 4);
+        let (tree, _) = scene.bulk_loaded_tree();
+        let mut rng = SceneRng::new(9);
+        let mut ws = QueryWorkspace::default();
+        let mut proven = 0;
+        for _ in 0..40 {
+            let eye = Vec3::new(
+                rng.range(0.0, 2000.0),
+                rng.range(0.0, 100.0),
+                rng.range(0.0, 2000.0),
+            );
+            let turn = Quat::from_rotation_y(rng.range(0.0, 6.3));
+            let view = Frustum::perspective(eye, turn, 1.0, 1.7, 0.1, 300.0).unwrap();
+            let slack = rng.range(0.0, 2.0);
+            let moved = |by: f32| {
+                let planes = view.planes().map(|p| {
+                    if p.is_inactive() {
+                        p
+                    } else {
+                        HalfSpace {
+                            offset: p.offset + by,
+                            ..p
+                        }
+                    }
+                });
+                Frustum::new(eye, planes).unwrap()
+            };
+            let (loose, tight) = (moved(slack), moved(-slack));
+            let mut got = Vec::new();
+            tree.visit_visible_proving(&loose, &tight, &mut ws, |key, contained| {
+                got.push((key, contained))
+            });
+            got.sort_unstable();
+            let mut want: Vec<(u32, bool)> = scene
+                .boxes()
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| frustum_conservative(&loose, b))
+                .map(|(i, b): (usize, &Aabb)| (i as u32, frustum_contains(&tight, b)))
+                .collect();
+            want.sort_unstable();
+            assert_eq!(got, want);
+            proven += got.iter().filter(|g| g.1).count();
+        }
+        assert!(proven > 10_000, "containment is exercised: {proven}");
+    }
+}
