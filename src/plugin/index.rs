@@ -175,7 +175,7 @@ pub(crate) fn sync_layer<L: Component>(
 ) {
     // Every entity of a layer is in the main layer too: one bad box is
     // reported there only, one warning and one count.
-    let changed = changed.iter().map(|(e, b)| (e, b.0));
+    let changed = changed.iter().map(|(e, b)| (e, b.0, None));
     apply_changes(&mut index, changed, &mut scratch, &sink, false);
 }
 
@@ -189,7 +189,7 @@ pub(crate) fn sync_main(
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    let changed = changed.iter().map(|(e, b)| (e, b.0));
+    let changed = changed.iter().map(|(e, b)| (e, b.0, None));
     apply_changes(&mut index, changed, &mut scratch, &sink, true);
 }
 
@@ -201,12 +201,17 @@ pub(crate) struct SyncScratch {
     fresh: Vec<(Entity, Aabb)>,
     /// Indexed entities that moved, applied as one batch.
     moves: Vec<(ProxyId, Aabb)>,
+    /// The handles of the entities the last sync inserted, for callers that
+    /// keep them on the entities.
+    pub inserted: Vec<(Entity, ProxyId)>,
 }
 
 /// Updates, inserts or (for invalid boxes) removes each changed entity,
 /// warning once per entity about an invalid box and counting it where
 /// `report` says this layer reports them. An entity appears at most once in
-/// `changed`.
+/// `changed`, with the handle its caller keeps for it, if any: a live handle
+/// of the entity saves the look-up of its entry. The handles of inserted
+/// entities are left in `scratch.inserted`.
 ///
 /// Moves are gathered and applied as one [`RTree::update_batch`](crate::RTree::update_batch).
 /// New entities are gathered and inserted together: when they outnumber the
@@ -214,16 +219,21 @@ pub(crate) struct SyncScratch {
 /// loaded, which is several times faster and gives a better tree.
 pub(crate) fn apply_changes<L: Component>(
     index: &mut SpatialIndex<L>,
-    changed: impl Iterator<Item = (Entity, Aabb)>,
+    changed: impl Iterator<Item = (Entity, Aabb, Option<ProxyId>)>,
     scratch: &mut SyncScratch,
     sink: &DiagnosticsSink,
     report: bool,
 ) {
     let mut count = SyncCount::default();
-    let SyncScratch { fresh, moves } = scratch;
+    let SyncScratch {
+        fresh,
+        moves,
+        inserted,
+    } = scratch;
     fresh.clear();
     moves.clear();
-    for (entity, aabb) in changed {
+    inserted.clear();
+    for (entity, aabb, kept) in changed {
         if let Err(error) = aabb.validate() {
             if index.remove(entity) {
                 count.removed += 1;
@@ -243,6 +253,12 @@ pub(crate) fn apply_changes<L: Component>(
         }
         if !index.unindexed.is_empty() {
             index.unindexed.remove(&entity);
+        }
+        if let Some(id) = kept
+            && index.tree.live_key(id) == Some(entity)
+        {
+            moves.push((id, aabb));
+            continue;
         }
         match index.proxies.get(&entity) {
             Some(&id) => moves.push((id, aabb)),
@@ -267,12 +283,14 @@ pub(crate) fn apply_changes<L: Component>(
             if let Ok(ids) = index.tree.insert_bulk(fresh.iter().copied()) {
                 for (&(entity, _), id) in fresh.iter().zip(ids) {
                     index.proxies.insert(entity, id);
+                    inserted.push((entity, id));
                 }
             }
         } else {
             for &(entity, aabb) in fresh.iter() {
                 if let Ok(id) = index.tree.insert(entity, aabb) {
                     index.proxies.insert(entity, id);
+                    inserted.push((entity, id));
                 }
             }
         }

@@ -78,7 +78,9 @@ use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 #[cfg(feature = "bevy_camera")]
 pub use bevy_camera::FollowBevyFrustum;
 #[cfg(feature = "bevy_camera")]
-pub use bevy_visibility::{BevyVisibilityPlugin, Renderable, RenderableSyncSystems};
+pub use bevy_visibility::{
+    BevyVisibilityPlugin, Renderable, RenderableHandle, RenderableSyncSystems,
+};
 pub use bounds::{NoSpatialIndex, SpatialBounds};
 pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};

@@ -11,7 +11,10 @@
 mod cameras;
 mod sync;
 
+pub use sync::RenderableHandle;
+
 use bevy_app::prelude::*;
+use bevy_camera::primitives::Aabb as BevyAabb;
 use bevy_camera::visibility::{
     VisibilitySystems, check_visibility_cpu_culling, check_visibility_ranges,
 };
@@ -106,6 +109,7 @@ impl Plugin for BevyVisibilityPlugin {
         debug_assert!(app.is_plugin_added::<SpatialIndexPlugin>());
         app.insert_resource(SpatialIndex::<Renderable>::new(config.tree))
             .init_resource::<sync::Resync>()
+            .register_required_components::<BevyAabb, RenderableHandle>()
             .configure_sets(
                 PostUpdate,
                 RenderableSyncSystems

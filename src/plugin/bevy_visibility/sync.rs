@@ -15,6 +15,7 @@ use super::Renderable;
 use crate::geometry::Aabb;
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::{self, SpatialIndex, SyncScratch};
+use crate::tree::ProxyId;
 
 /// The filter of the set Bevy's CPU culling tests, less the entities that
 /// the index leaves to one-by-one tests (no `Aabb`, or `NoFrustumCulling`).
@@ -29,6 +30,14 @@ pub(super) type Indexable = (
 /// opt-out marker removed): their box is read again.
 #[derive(Resource, Default)]
 pub(super) struct Resync(Vec<Entity>);
+
+/// The index's handle of a renderable, kept on the entity (every entity
+/// with Bevy's `Aabb` gets one, as a required component, so keeping it
+/// moves no entity between tables): a move then finds its entry without
+/// looking the entity up. A stale or foreign handle is refused by the
+/// index and costs only that look-up.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct RenderableHandle(Option<ProxyId>);
 
 /// The world box of a Bevy `Aabb` under a transform: the box around the
 /// oriented box Bevy's tests see, rounded outward (SEMANTICS S1). An
@@ -49,8 +58,8 @@ pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
 #[allow(clippy::type_complexity)]
 pub(super) fn sync_renderables(
     mut index: ResMut<SpatialIndex<Renderable>>,
-    changed: Query<
-        (Entity, &BevyAabb, &GlobalTransform),
+    mut changed: Query<
+        (Entity, &BevyAabb, &GlobalTransform, &mut RenderableHandle),
         (Indexable, Or<(Changed<GlobalTransform>, Changed<BevyAabb>)>),
     >,
     members: Query<(&BevyAabb, &GlobalTransform), Indexable>,
@@ -65,13 +74,18 @@ pub(super) fn sync_renderables(
     again.retain(|&entity| !changed.contains(entity));
     let again = again.into_iter().filter_map(|entity| {
         let (aabb, transform) = members.get(entity).ok()?;
-        Some((entity, world_box(aabb, transform)))
+        Some((entity, world_box(aabb, transform), None))
     });
     let boxes = changed
         .iter()
-        .map(|(entity, aabb, transform)| (entity, world_box(aabb, transform)))
+        .map(|(entity, aabb, transform, handle)| (entity, world_box(aabb, transform), handle.0))
         .chain(again);
     index::apply_changes(&mut index, boxes, &mut scratch, &sink, true);
+    for &(entity, id) in &scratch.inserted {
+        if let Ok((.., mut handle)) = changed.get_mut(entity) {
+            handle.0 = Some(id);
+        }
+    }
 }
 
 /// Observers: an entity leaves the index when it loses what Bevy's culling
