@@ -18,7 +18,8 @@ use bevy_asset::Assets;
 use bevy_camera::primitives::Aabb;
 use bevy_camera::visibility::{ViewVisibility, VisibilitySystems, VisibleEntities};
 use bevy_camera::{
-    Camera3d, CameraPlugin, OrthographicProjection, PerspectiveProjection, Projection, ScalingMode,
+    Camera3d, CameraPlugin, CameraProjection, OrthographicProjection, PerspectiveProjection,
+    Projection, ScalingMode,
 };
 use bevy_ecs::prelude::*;
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
@@ -218,18 +219,21 @@ fn large_map(world: &mut World, seed: u64) {
         })
         .collect();
     world.spawn_batch(tiles);
-    // Looking straight down on a 2,800 m square: 2 % of the map.
+    // Looking straight down on a 2,800 m square: 2 % of the map. Headless,
+    // no window sizes the projection, so it is sized here.
+    let mut projection = OrthographicProjection {
+        scaling_mode: ScalingMode::Fixed {
+            width: 2_800.0,
+            height: 2_800.0,
+        },
+        near: 0.0,
+        far: 1_000.0,
+        ..OrthographicProjection::default_3d()
+    };
+    projection.update(1.0, 1.0);
     world.spawn((
         Camera3d::default(),
-        Projection::Orthographic(OrthographicProjection {
-            scaling_mode: ScalingMode::Fixed {
-                width: 2_800.0,
-                height: 2_800.0,
-            },
-            near: 0.0,
-            far: 1_000.0,
-            ..OrthographicProjection::default_3d()
-        }),
+        Projection::Orthographic(projection),
         Transform::from_xyz(SIDE / 2.0, 500.0, SIDE / 2.0)
             .looking_at(Vec3::new(SIDE / 2.0, 0.0, SIDE / 2.0), Vec3::NEG_Z),
     ));

@@ -36,6 +36,17 @@ type Culled<'a> = (
 
 type CulledItem<'w, 's> = <Culled<'static> as QueryData>::Item<'w, 's>;
 
+/// What a candidate the tree proved inside needs read: everything but
+/// its box and transform. A look-up binds each term of its query to the
+/// entity's table, so the fewer, the cheaper.
+type Proven<'a> = (
+    &'a InheritedVisibility,
+    &'a mut ViewVisibility,
+    Option<&'a VisibilityClass>,
+    Option<&'a RenderLayers>,
+    Has<VisibilityRange>,
+);
+
 /// The entities of Bevy's culling set that are not in the tree by
 /// construction: no `Aabb`, or `NoFrustumCulling`.
 type OutsideTheTree = (
@@ -104,7 +115,10 @@ pub(super) fn check_visibility_from_index(
         Has<NoCpuCulling>,
         Option<&GlobalTransform>,
     )>,
-    mut culled: Query<Culled<'_>, Without<NoCpuCulling>>,
+    mut entities: ParamSet<(
+        Query<Culled<'_>, Without<NoCpuCulling>>,
+        Query<Proven<'_>, Without<NoCpuCulling>>,
+    )>,
     outside_the_tree: Query<Entity, OutsideTheTree>,
     index: Res<SpatialIndex<Renderable>>,
     ranges: Option<Res<VisibleEntityRanges>>,
@@ -145,7 +159,7 @@ pub(super) fn check_visibility_from_index(
         }
         views.push(view);
     }
-    let entities = culled.iter().len();
+    let count = entities.p0().iter().len();
     let candidates: usize = views.iter().map(|v| v.candidates.len()).sum();
     let mut one_by_one = std::mem::take(&mut scratch.one_by_one);
     one_by_one.clear();
@@ -153,16 +167,28 @@ pub(super) fn check_visibility_from_index(
     let any_all = views.iter().any(|v| v.no_culling);
     // A pass over every entity costs a few nanoseconds per entity; a look-up
     // by `Entity` some tens per candidate.
-    if any_all || candidates * 8 > entities {
+    if any_all || candidates * 8 > count {
+        let mut culled = entities.p0();
         for pass in views.chunks_mut(VIEWS_PER_PASS) {
             decide_in_storage_order(pass, &one_by_one, &mut culled, ranges, &mut scratch.marks);
         }
     } else {
         for view in &mut views {
-            let candidates = std::mem::take(&mut view.candidates);
-            for &(entity, proven) in &candidates {
-                if let Ok(mut item) = culled.get_mut(entity) {
-                    decide(view, &mut item, proven, ranges);
+            let mut candidates = std::mem::take(&mut view.candidates);
+            // In entity order, which follows storage order where entities
+            // were spawned together: neighbouring look-ups share cache
+            // lines and pages.
+            candidates.sort_unstable_by_key(|c| c.0.index_u32());
+            let mut proven = entities.p1();
+            for &(entity, inside) in &candidates {
+                if inside && let Ok(item) = proven.get_mut(entity) {
+                    decide_proven(view, entity, item, ranges);
+                }
+            }
+            let mut culled = entities.p0();
+            for &(entity, inside) in &candidates {
+                if !inside && let Ok(mut item) = culled.get_mut(entity) {
+                    decide(view, &mut item, false, ranges);
                 }
             }
             for &entity in &one_by_one {
@@ -250,6 +276,29 @@ fn decide_in_storage_order(
     }
     for &entity in one_by_one {
         marks[entity.index_u32() as usize] = 0;
+    }
+}
+
+/// [`decide`] for an entity the tree proved inside every plane: Bevy's
+/// other checks, through the narrower [`Proven`] query.
+fn decide_proven(
+    view: &mut View,
+    entity: Entity,
+    item: <Proven<'static> as QueryData>::Item<'_, '_>,
+    ranges: Option<&VisibleEntityRanges>,
+) {
+    let (inherited, mut view_visibility, class, mask, has_range) = item;
+    if !inherited.get() || !view.mask.intersects(mask.unwrap_or_default()) {
+        return;
+    }
+    if has_range && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)) {
+        return;
+    }
+    view_visibility.set_visible();
+    if let Some(class) = class {
+        for &id in class.iter() {
+            view.push(entity, id);
+        }
     }
 }
 
