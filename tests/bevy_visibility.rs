@@ -44,6 +44,8 @@ struct Twins {
     entities: Vec<[Entity; 2]>,
     cameras: Vec<[Entity; 2]>,
     rng: SceneRng,
+    /// Half the width of the square the entities are spread over, in metres.
+    spread: f32,
 }
 
 impl Twins {
@@ -54,6 +56,7 @@ impl Twins {
             entities: Vec::new(),
             cameras: Vec::new(),
             rng: SceneRng::new(seed),
+            spread: 100.0,
         }
     }
 
@@ -69,8 +72,9 @@ impl Twins {
     fn spawn_entity(&mut self) {
         let parent = (self.rng.below(8) == 0 && !self.entities.is_empty())
             .then(|| self.entities[self.rng.below(self.entities.len())]);
+        let spread = self.spread;
         let pair = self.both(|world, rng, side| {
-            let mut entity = world.spawn((random_transform(rng), random_visibility(rng)));
+            let mut entity = world.spawn((random_transform(rng, spread), random_visibility(rng)));
             match rng.below(10) {
                 0 => {
                     // No box: Bevy does not cull it.
@@ -156,6 +160,7 @@ impl Twins {
     /// One frame of random changes, the same in both worlds.
     fn mutate(&mut self) {
         let n = self.entities.len();
+        let spread = self.spread;
         for _ in 0..n / 10 {
             let i = self.rng.below(n);
             let pair = self.entities[i];
@@ -173,7 +178,7 @@ impl Twins {
                         }
                     }
                     10..=11 => {
-                        entity.insert(random_transform(rng));
+                        entity.insert(random_transform(rng, spread));
                     }
                     12 => {
                         entity.insert(random_visibility(rng));
@@ -293,11 +298,11 @@ impl Twins {
     }
 }
 
-fn random_transform(rng: &mut SceneRng) -> Transform {
+fn random_transform(rng: &mut SceneRng, spread: f32) -> Transform {
     let at = Vec3::new(
-        rng.range(-100.0, 100.0),
+        rng.range(-spread, spread),
         rng.range(-5.0, 30.0),
-        rng.range(-100.0, 100.0),
+        rng.range(-spread, spread),
     );
     let turn = Quat::from_euler(
         glam::EulerRot::YXZ,
@@ -377,6 +382,31 @@ fn cameras_see_what_bevy_sees_every_frame() {
         let diagnostics = twins.ours.world().resource::<SpatialDiagnostics>();
         assert!(diagnostics.culling.runs > 0);
     }
+}
+
+/// Entities spread over 4 km, cameras that each see a small part of them:
+/// candidates are looked up one by one (the path for large worlds), not
+/// decided in a pass over all entities.
+#[test]
+fn cameras_that_see_a_small_part_see_what_bevy_sees() {
+    let mut twins = Twins::new(11);
+    twins.spread = 2_000.0;
+    for _ in 0..6_000 {
+        twins.spawn_entity();
+    }
+    for kind in [0, 1, 2] {
+        twins.spawn_camera(kind);
+    }
+    let mut seen = 0;
+    for frame in 0..30 {
+        twins.update();
+        seen += twins.check(frame);
+        twins.mutate();
+    }
+    // The counts include the entities no frustum culls (no box,
+    // `NoFrustumCulling`): the tree's candidates are far fewer than an
+    // eighth of the entities, which sends them to the look-up path.
+    assert!(seen > 200, "{seen} seen in 30 frames");
 }
 
 /// Boxes placed across, on and just outside a camera's planes, closer than
