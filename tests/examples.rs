@@ -1,5 +1,9 @@
 //! Every example scene, driven for a few frames, answers like brute force.
 
+#[cfg(feature = "bevy_camera")]
+#[path = "../examples/bevy_visibility.rs"]
+#[allow(dead_code)]
+mod bevy_visibility;
 #[path = "../examples/culling.rs"]
 #[allow(dead_code)]
 mod culling;
@@ -88,4 +92,35 @@ fn enemies_and_barrels_pairs_match_the_oracle() {
         assert!(agrees);
         assert!(pairs > 0);
     }
+}
+
+/// The street of Bevy meshes: houses ahead drawn, behind not, the hidden
+/// house and its chimney never, the sign on another layer never, the sky
+/// with `NoFrustumCulling` always; the camera's list holds exactly the
+/// drawn meshes.
+#[cfg(feature = "bevy_camera")]
+#[test]
+fn bevy_visibility_draws_what_bevy_would() {
+    let mut street = bevy_visibility::build();
+    let mut drawn_total = 0;
+    for _ in 0..20 {
+        street.app.update();
+        let drawn: Vec<_> = street
+            .houses
+            .iter()
+            .filter(|&&h| bevy_visibility::drawn(&street, h))
+            .collect();
+        assert!(!drawn.is_empty() && drawn.len() < street.houses.len());
+        drawn_total += drawn.len();
+        assert!(!bevy_visibility::drawn(&street, street.hidden_house));
+        assert!(!bevy_visibility::drawn(&street, street.chimney));
+        assert!(!bevy_visibility::drawn(&street, street.sign_on_layer_one));
+        assert!(bevy_visibility::drawn(&street, street.sky));
+        // The houses drawn and the sky.
+        assert_eq!(bevy_visibility::listed(&street), drawn.len() + 1);
+    }
+    assert!(drawn_total > 20 * 20, "{drawn_total}");
+    // Culled by the tree: the plugin's culling ran and visited its nodes.
+    let d = *street.app.world().resource::<SpatialDiagnostics>();
+    assert!(d.culling.runs == 1 && d.culling.nodes_visited > 0, "{d:?}");
 }
