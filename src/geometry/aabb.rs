@@ -1,4 +1,4 @@
-//! Axis-aligned boxes (SEMANTICS S0, S1).
+//! Axis-aligned boxes ([contract S0](crate::contract), S1).
 
 use glam::{Affine3A, Vec3, Vec3A};
 
@@ -64,7 +64,7 @@ impl Aabb {
     /// A checked box from a centre and non-negative half extents.
     ///
     /// The corners are computed once, in `f32`; the box is stored as min/max
-    /// from then on (SEMANTICS S0 explains why never centre/half-extents).
+    /// from then on ([contract S0](crate::contract) explains why never centre/half-extents).
     pub fn from_center_half_extents(center: Vec3, half: Vec3) -> Result<Aabb, SpatialError> {
         if !(half.cmpge(Vec3::ZERO).all()) {
             return Err(SpatialError::InvalidBox);
@@ -163,7 +163,7 @@ impl Aabb {
         e.x + e.y + e.z
     }
 
-    /// The world box of a local box under an affine transform (SEMANTICS S1).
+    /// The world box of a local box under an affine transform ([contract S1](crate::contract)).
     ///
     /// centre' = M * centre, half' = |M3x3| * half, evaluated in `f64` from
     /// the `f32` inputs; unless the transform is a pure translation, min is

@@ -5,7 +5,7 @@ use std::fmt;
 /// Why a mutation or query was refused.
 ///
 /// Every fallible operation of the crate returns this type. A mutation that
-/// returns an error leaves the index observably unchanged (SEMANTICS S2): same
+/// returns an error leaves the index observably unchanged ([contract S2](crate::contract)): same
 /// `len()`, same answers, `validate()` still passes.
 ///
 /// ```

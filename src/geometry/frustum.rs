@@ -1,4 +1,4 @@
-//! View frustums as eye-relative half-spaces (SEMANTICS S7).
+//! View frustums as eye-relative half-spaces ([contract S7](crate::contract)).
 
 use glam::{Quat, Vec3};
 
@@ -252,7 +252,7 @@ impl Frustum {
         &self.planes
     }
 
-    /// The conservative test (SEMANTICS S7, Bevy's convention): visible iff for
+    /// The conservative test ([contract S7](crate::contract), Bevy's convention): visible iff for
     /// every plane `dot(n, p - eye) + offset > 0`, with `p` the box corner
     /// furthest along `n`. A box touching a plane from outside is culled.
     #[inline]

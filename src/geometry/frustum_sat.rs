@@ -15,7 +15,7 @@ const MAX_AXES: usize = 48;
 /// through.
 const LINE_TOLERANCE: f64 = 1e-12;
 
-/// A frustum prepared for exact box tests (SEMANTICS S7, exact mode).
+/// A frustum prepared for exact box tests ([contract S7](crate::contract), exact mode).
 ///
 /// Axes: the three box face normals, and each box edge direction crossed
 /// with each frustum edge direction (every pair of plane normals, crossed).

@@ -1,5 +1,5 @@
 //! Geometry: boxes, rays, frustums, the error type, and the predicates that
-//! define every answer of the index (SEMANTICS.md).
+//! define every answer of the index (the [contract](crate::contract)).
 
 mod aabb;
 mod error;

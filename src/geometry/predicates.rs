@@ -1,4 +1,4 @@
-//! The predicates of SEMANTICS.md, one function each.
+//! The predicates of the [contract](crate::contract), one function each.
 //!
 //! The tree and the brute-force oracle both call these functions, so an answer
 //! can only differ from the oracle if the tree prunes something it should not.

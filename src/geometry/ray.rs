@@ -1,4 +1,4 @@
-//! Rays as closed segments (SEMANTICS S3).
+//! Rays as closed segments ([contract S3](crate::contract)).
 
 use glam::Vec3;
 
@@ -75,7 +75,7 @@ impl Ray {
 }
 
 /// A checked ray prepared for many box tests with the one ray-box predicate
-/// of SEMANTICS S4, the same function the tree and the oracle call. Useful
+/// of [contract S4](crate::contract), the same function the tree and the oracle call. Useful
 /// for testing boxes outside the index (or for feeding another index).
 ///
 /// ```

@@ -42,7 +42,7 @@ use crate::query::CullMode;
 #[derive(Component)]
 #[require(VisibleEntityList<L>)]
 pub struct CullingCamera<L: Component = SpatialBounds> {
-    /// The view volume, relative to its eye (SEMANTICS S7).
+    /// The view volume, relative to its eye ([contract S7](crate::contract)).
     pub frustum: Frustum,
     /// Conservative (Bevy's convention, the default) or exact.
     pub mode: CullMode,

@@ -94,7 +94,7 @@ impl<L: Component> SpatialIndex<L> {
         self.tree.get(id).ok().map(|(_, aabb)| aabb)
     }
 
-    /// Checks the tree's invariants (SEMANTICS S10) and that the entity map
+    /// Checks the tree's invariants ([contract S10](crate::contract)) and that the entity map
     /// and the tree agree.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         self.tree.validate()?;

@@ -14,7 +14,7 @@ use crate::query::JoinMode;
 /// The pairs of a join registered with
 /// [`add_spatial_join::<A, B>`](super::SpatialAppExt::add_spatial_join):
 /// every `(a, b)` with `a` in layer `A`, `b` in layer `B`, `a != b`, whose
-/// boxes are within [`distance`](Self::distance) (SEMANTICS S8), sorted.
+/// boxes are within [`distance`](Self::distance) ([contract S8](crate::contract)), sorted.
 ///
 /// For a self join (`A == B`) each unordered pair appears once, as
 /// `(smaller, larger)` entity. Change `distance` or `mode` at any time; the

@@ -55,7 +55,7 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         &self.index
     }
 
-    /// The nearest hit of `ray` (SEMANTICS S5).
+    /// The nearest hit of `ray` ([contract S5](crate::contract)).
     pub fn cast_ray(&mut self, ray: &Ray) -> Result<Option<RayHit<Entity>>, SpatialError> {
         self.index.tree().cast_ray(ray, &mut self.workspace)
     }

@@ -39,7 +39,7 @@ use crate::query::{RayHit, RayMode, RayResults};
 #[derive(Component)]
 #[require(RayCasterHits<L>)]
 pub struct RayCaster<L: Component = SpatialBounds> {
-    /// The ray, in world space (SEMANTICS S3).
+    /// The ray, in world space ([contract S3](crate::contract)).
     pub ray: Ray,
     /// First hit, all hits (optionally limited) or any hit.
     pub mode: RayMode,
@@ -67,7 +67,7 @@ impl<L: Component> RayCaster<L> {
     }
 }
 
-/// This frame's answer for a [`RayCaster<L>`] (SEMANTICS S5).
+/// This frame's answer for a [`RayCaster<L>`] ([contract S5](crate::contract)).
 ///
 /// One answer per layer: an entity with casters of two layers has a
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its

@@ -12,7 +12,7 @@ use super::bounds::SpatialBounds;
 use crate::geometry::Aabb;
 
 /// The entity's box in its local space; its world box follows its
-/// `GlobalTransform` (SEMANTICS S1: outward rounding unless the transform is
+/// `GlobalTransform` ([contract S1](crate::contract): outward rounding unless the transform is
 /// a pure translation).
 ///
 /// A transform that is not finite or that collapses an axis (zero scale)

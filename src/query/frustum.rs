@@ -16,7 +16,7 @@ use crate::geometry::{Frustum, FrustumSat};
 use crate::tree::RTree;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 
-/// How a frustum decides that a box is visible (SEMANTICS S7).
+/// How a frustum decides that a box is visible ([contract S7](crate::contract)).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum CullMode {
     /// Visible iff the box's furthest corner along every plane normal is

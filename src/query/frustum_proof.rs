@@ -9,7 +9,7 @@ use crate::tree::RTree;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Calls `visit(key, contained)` for every entry that the conservative
-    /// test of `loose` accepts (SEMANTICS S7), with `contained` true iff
+    /// test of `loose` accepts ([contract S7](crate::contract)), with `contained` true iff
     /// `tight` contains its box (every corner strictly inside every plane,
     /// as [`frustum_contains`](crate::geometry::predicates::frustum_contains)
     /// decides), in no particular order.

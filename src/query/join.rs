@@ -4,7 +4,7 @@
 //! The traversal descends pairs of nodes in lock step: for two nodes it tests
 //! every pair of their children and recurses only into the pairs that can
 //! still be within the distance, so whole regions far apart are dismissed at
-//! once. Entry pairs are decided by the predicate of SEMANTICS S8 in `f64`.
+//! once. Entry pairs are decided by the predicate of [contract S8](crate::contract) in `f64`.
 
 use std::ops::ControlFlow;
 
@@ -16,7 +16,7 @@ use crate::geometry::{Aabb, SpatialError};
 use crate::tree::node::Node;
 use crate::tree::{ProxyId, RTree};
 
-/// Which distance a join uses (SEMANTICS S8).
+/// Which distance a join uses ([contract S8](crate::contract)).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum JoinMode {
     /// Pair iff the Euclidean distance between the closed boxes is `<= d`.
@@ -33,7 +33,7 @@ pub enum JoinMode {
 }
 
 impl JoinMode {
-    /// The pair predicate of this mode (SEMANTICS S8).
+    /// The pair predicate of this mode ([contract S8](crate::contract)).
     #[inline]
     pub(crate) fn accepts(self, a: &Aabb, b: &Aabb, distance: f64) -> bool {
         match self {
@@ -80,7 +80,7 @@ impl JoinTest {
         self.reach == 0.0
     }
 
-    /// The pair predicate of SEMANTICS S8.
+    /// The pair predicate of [contract S8](crate::contract).
     #[inline]
     fn accepts(&self, a: &Aabb, b: &Aabb) -> bool {
         self.mode.accepts(a, b, self.exact)

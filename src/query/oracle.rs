@@ -111,7 +111,7 @@ impl<K: Copy + Ord> BruteForce<K> {
         out
     }
 
-    /// Every hit of `ray`, sorted by `(t, key)` (SEMANTICS S4, S5).
+    /// Every hit of `ray`, sorted by `(t, key)` ([contract S4](crate::contract), S5).
     pub fn ray_hits(&self, ray: &Ray) -> Result<Vec<RayHit<K>>, SpatialError> {
         let ray = ray.canonicalized()?;
         let test = RayTest::new(&ray);
@@ -238,7 +238,7 @@ impl<K: Copy + Ord> BruteForce<K> {
     }
 
     /// Sorted `(lo, hi)` pairs of distinct entries within `distance`, by a
-    /// sort-and-sweep along x (SEMANTICS S8).
+    /// sort-and-sweep along x ([contract S8](crate::contract)).
     pub fn self_join(&self, distance: f32, mode: JoinMode) -> Result<Vec<(K, K)>, SpatialError> {
         let d = predicates::check_distance(distance)?;
         let mut order: Vec<usize> = (0..self.entries.len()).collect();

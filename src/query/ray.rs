@@ -25,7 +25,7 @@ pub struct RayHit<K> {
     pub t: f32,
 }
 
-/// What a raycast asks for (SEMANTICS S5).
+/// What a raycast asks for ([contract S5](crate::contract)).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum RayMode {
     /// The hit with the smallest `(t, key)`.

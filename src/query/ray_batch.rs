@@ -25,7 +25,7 @@ use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
 use crate::tree::node::{NIL, Node};
 
-/// The answers of a batch: slot `i` belongs to ray `i` (SEMANTICS S6).
+/// The answers of a batch: slot `i` belongs to ray `i` ([contract S6](crate::contract)).
 #[derive(Clone, Debug)]
 pub struct RayResults<K> {
     slots: Vec<Result<(Range<u32>, bool), SpatialError>>,

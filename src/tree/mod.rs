@@ -11,7 +11,7 @@
 //! - `optimize`: local repacking of churned subtrees;
 //! - `prefetch`: cache hints for box queries, batched moves and repacks
 //!   (the crate's only `unsafe`);
-//! - `validate`: the invariant checker of SEMANTICS S10.
+//! - `validate`: the invariant checker of [contract S10](crate::contract).
 
 mod bulk;
 mod choose;

@@ -14,7 +14,7 @@ use crate::geometry::{Aabb, MAX_COORD, SpatialError};
 /// stretched along its last displacement by `displacement_factor` times that
 /// displacement. A move whose new exact box stays inside the fat box costs
 /// O(1) and changes nothing structural. Answers never use the fat box: every
-/// query tests the exact box (SEMANTICS S2), so these settings trade update
+/// query tests the exact box ([contract S2](crate::contract)), so these settings trade update
 /// time against query work, never against correctness.
 ///
 /// The stretch cannot run away: a displacement longer than

@@ -1,4 +1,4 @@
-//! The invariant checker (SEMANTICS S10).
+//! The invariant checker ([contract S10](crate::contract)).
 
 use std::fmt;
 

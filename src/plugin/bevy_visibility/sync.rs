@@ -40,7 +40,7 @@ pub(super) struct Resync(Vec<Entity>);
 pub struct RenderableHandle(Option<ProxyId>);
 
 /// The world box of a Bevy `Aabb` under a transform: the box around the
-/// oriented box Bevy's tests see, rounded outward (SEMANTICS S1). An
+/// oriented box Bevy's tests see, rounded outward ([contract S1](crate::contract)). An
 /// unusable one (NaN, a negative half extent, a collapsed axis) is the
 /// inverted box, which the index refuses and counts.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
