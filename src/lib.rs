@@ -202,6 +202,7 @@
 
 pub mod contract;
 pub mod geometry;
+#[cfg(feature = "plugin")]
 pub mod plugin;
 pub mod prelude;
 pub mod query;

@@ -24,6 +24,7 @@ pub use crate::geometry::{Aabb, Frustum, HalfSpace, MAX_COORD, Ray, SpatialError
 pub use crate::plugin::LocalBounds;
 #[cfg(feature = "bevy_camera")]
 pub use crate::plugin::{BevyVisibilityPlugin, FollowBevyFrustum, Renderable};
+#[cfg(feature = "plugin")]
 pub use crate::plugin::{
     CullingCamera, NoSpatialIndex, PairEnded, PairStarted, RayCaster, RayCasterHits, SpatialAppExt,
     SpatialBounds, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin, SpatialIndexSystems,

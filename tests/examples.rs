@@ -1,4 +1,5 @@
 //! Every example scene, driven for a few frames, answers like brute force.
+#![cfg(feature = "plugin")]
 
 #[cfg(feature = "bevy_camera")]
 #[path = "../examples/bevy_visibility.rs"]

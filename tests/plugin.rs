@@ -1,5 +1,6 @@
 //! Named scenes through the plugin: the lifecycle of an indexed entity,
 //! layers, bad input on the ECS path, and what runs (or not) each frame.
+#![cfg(feature = "plugin")]
 
 use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;

@@ -5,6 +5,7 @@
 //!
 //! `soak_short` runs in CI; `soak_long` (thousands of frames) runs with
 //! `cargo test --release --test plugin_soak -- --ignored`.
+#![cfg(feature = "plugin")]
 
 use bevy_app::prelude::*;
 use bevy_ecs::message::Messages;

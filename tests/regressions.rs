@@ -7,15 +7,20 @@ mod common;
 
 use std::ops::ControlFlow;
 
+#[cfg(feature = "plugin")]
 use bevy_app::prelude::*;
+#[cfg(feature = "plugin")]
 use bevy_ecs::prelude::*;
+#[cfg(feature = "plugin")]
+use bevy_rtree::RayMode;
 use bevy_rtree::oracle::BruteForce;
+#[cfg(feature = "plugin")]
 use bevy_rtree::plugin::{
     CullingCamera, RayCaster, RayCasterHits, SpatialAppExt, SpatialBounds, SpatialIndex,
     SpatialIndexPlugin, VisibleEntityList,
 };
 use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
-use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, ProxyId, QueryWorkspace, RTree, Ray, RayMode};
+use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, ProxyId, QueryWorkspace, RTree, Ray};
 use glam::{Quat, Vec3};
 
 /// Exact culling saw nothing once a plane was 1e9 m or more from the eye:
@@ -201,6 +206,7 @@ fn an_enlarged_box_after_a_jump_is_no_larger_than_after_a_step() {
 /// Through the plugin: entities that each respawn once across the world
 /// and then stand still leave a tree whose box queries cost what a fresh
 /// tree's do (the frame took 150 times longer and stayed there).
+#[cfg(feature = "plugin")]
 #[test]
 fn a_respawn_through_the_plugin_leaves_the_tree_as_good_as_fresh() {
     let scene = TownScene::new(10_000, 8);
@@ -344,15 +350,18 @@ fn visible_into_makes_one_list_per_frustum_whatever_out_holds() {
     }
 }
 
+#[cfg(feature = "plugin")]
 #[derive(Component)]
 struct Walls;
 
+#[cfg(feature = "plugin")]
 #[derive(Component)]
 struct Props;
 
 /// Two layers' cameras (or casters) on one entity shared one answer
 /// component, so one layer's answer was lost; and an entity that lost its
 /// camera or caster kept naming entities long despawned.
+#[cfg(feature = "plugin")]
 #[test]
 fn each_layer_has_its_own_answer_and_a_lost_camera_takes_its_answer_along() {
     let mut app = App::new();

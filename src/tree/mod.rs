@@ -244,6 +244,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// handle kept elsewhere (reads the handle's stamp and the key, not the
     /// entry's leaf).
     #[inline]
+    #[cfg_attr(not(feature = "plugin"), allow(dead_code))]
     pub(crate) fn live_key(&self, id: ProxyId) -> Option<K> {
         self.check(id).ok().map(|index| self.keys[index as usize])
     }
