@@ -41,6 +41,7 @@ use crate::query::CullMode;
 /// ```
 #[derive(Component)]
 #[require(VisibleEntityList<L>)]
+#[component(on_add = super::layer_must_be_registered::<L>)]
 pub struct CullingCamera<L: Component = SpatialBounds> {
     /// The view volume, relative to its eye ([contract S7](crate::contract)).
     pub frustum: Frustum,

@@ -202,8 +202,13 @@ pub trait SpatialAppExt {
     /// Keeps a separate index of the entities marked `L` (with
     /// [`SpatialBounds`]), readable as `Res<SpatialIndex<L>>` and usable by
     /// `CullingCamera<L>`, `RayCaster<L>`, `SpatialQuery<L>` and joins.
-    /// Registering a layer twice does nothing. Add the plugin first (if it is
-    /// missing, the default plugin is added).
+    /// Registering a layer twice does nothing.
+    ///
+    /// # Panics
+    ///
+    /// If [`SpatialIndexPlugin`] has not been added yet: the layer would
+    /// otherwise be built with settings the plugin added later could not
+    /// change.
     fn add_spatial_layer<L: Component>(&mut self) -> &mut Self;
 
     /// Computes, every frame, the pairs of layer `A` × layer `B` within
@@ -224,10 +229,12 @@ impl SpatialAppExt for App {
             return self;
         }
         let Some(config) = self.world().get_resource::<SpatialIndexConfig>().cloned() else {
-            log::warn!("add_spatial_layer before SpatialIndexPlugin: adding the default plugin");
-            return self
-                .add_plugins(SpatialIndexPlugin::default())
-                .add_spatial_layer::<L>();
+            panic!(
+                "add_spatial_layer::<{}> (or add_spatial_join) before SpatialIndexPlugin: \
+                 add the plugin first, as in \
+                 app.add_plugins(SpatialIndexPlugin::default()).add_spatial_layer::<L>()",
+                std::any::type_name::<L>()
+            );
         };
         self.insert_resource(index::SpatialIndex::<L>::new(config.tree));
         register_layer_queries::<L>(self, &config);
@@ -315,6 +322,27 @@ fn register_layer_queries<L: Component>(app: &mut App, config: &SpatialIndexConf
     )
     .add_observer(culling::drop_list::<L>)
     .add_observer(raycast::drop_hits::<L>);
+}
+
+/// Component hook of the layer-generic components (cameras and casters of
+/// layer `L`): the layer must be registered, or the component would
+/// silently answer nothing forever.
+pub(crate) fn layer_must_be_registered<L: Component>(
+    world: bevy_ecs::world::DeferredWorld,
+    context: bevy_ecs::lifecycle::HookContext,
+) {
+    if !world.contains_resource::<index::SpatialIndex<L>>() {
+        let layer = std::any::type_name::<L>();
+        panic!(
+            "{} on {} uses the spatial layer {layer}, which is not registered: \
+             call app.add_spatial_layer::<{layer}>() after adding SpatialIndexPlugin",
+            world
+                .components()
+                .get_name(context.component_id)
+                .map_or_else(|| "a component".to_string(), |n| n.to_string()),
+            context.entity
+        );
+    }
 }
 
 /// Observer: an entity that drops its opt-out marker is put back on the next

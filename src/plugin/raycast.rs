@@ -38,6 +38,7 @@ use crate::query::{RayHit, RayMode, RayResults};
 /// ```
 #[derive(Component)]
 #[require(RayCasterHits<L>)]
+#[component(on_add = super::layer_must_be_registered::<L>)]
 pub struct RayCaster<L: Component = SpatialBounds> {
     /// The ray, in world space ([contract S3](crate::contract)).
     pub ray: Ray,

@@ -131,9 +131,15 @@ impl Plugin for BevyVisibilityPlugin {
         if config.schedule == PostUpdate.intern() {
             // The layer's own queries (SpatialQuery and the plugin's
             // cameras and casters) then see this frame's renderables.
+            // And the repair of the renderables' tree comes before the
+            // cameras read it (either order answers the same; this one is
+            // fixed, and the repaired tree is the faster to cull).
             app.configure_sets(
                 PostUpdate,
-                RenderableSyncSystems.before(SpatialIndexSystems::Maintain),
+                (
+                    RenderableSyncSystems.before(SpatialIndexSystems::Maintain),
+                    SpatialIndexSystems::Maintain.before(VisibilitySystems::CheckVisibility),
+                ),
             );
         }
         sync::add_observers(app);

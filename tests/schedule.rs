@@ -1,0 +1,92 @@
+//! The plugin in the schedule and in the App: no ambiguous pairs of
+//! systems, and misuse of layers is a clear error, never silence.
+#![cfg(feature = "plugin")]
+
+use bevy_app::prelude::*;
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{LogLevel, ScheduleBuildSettings};
+use bevy_rtree::prelude::*;
+
+#[derive(Component)]
+struct Enemy;
+#[derive(Component)]
+struct Barrel;
+
+#[test]
+fn the_plugin_s_systems_have_no_ambiguities_among_themselves() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default())
+        .add_spatial_layer::<Enemy>()
+        .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean)
+        .add_spatial_join::<Enemy, Enemy>(1.0, JoinMode::Euclidean);
+    app.edit_schedule(PostUpdate, |schedule| {
+        schedule.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..Default::default()
+        });
+    });
+    app.world_mut().spawn((
+        SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap()),
+        Enemy,
+    ));
+    app.update();
+}
+
+/// With Bevy's transforms and cameras and the index serving Bevy's
+/// visibility: no pair of systems in `PostUpdate` is ambiguous.
+#[cfg(feature = "bevy_camera")]
+#[test]
+fn with_bevy_s_cameras_no_system_pair_in_post_update_is_ambiguous() {
+    use bevy_asset::Assets;
+    use bevy_camera::CameraPlugin;
+    use bevy_mesh::Mesh;
+    use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
+    let mut app = App::new();
+    app.add_plugins((bevy_transform::TransformPlugin, CameraPlugin))
+        .insert_resource(Assets::<Mesh>::default())
+        .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
+        .add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
+        .add_spatial_layer::<Enemy>()
+        .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+    app.edit_schedule(PostUpdate, |schedule| {
+        schedule.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..Default::default()
+        });
+    });
+    app.update();
+}
+
+#[derive(Component)]
+struct Unregistered;
+
+/// A layer registered before the plugin used to add the default plugin
+/// silently, and the configured one added next panicked as a duplicate:
+/// now the misuse itself is the clear error.
+#[test]
+#[should_panic(expected = "before SpatialIndexPlugin")]
+fn a_layer_before_the_plugin_is_a_clear_error() {
+    App::new().add_spatial_layer::<Enemy>();
+}
+
+/// A caster or camera of a layer nobody registered used to answer nothing,
+/// forever and silently.
+#[test]
+#[should_panic(expected = "which is not registered")]
+fn a_caster_of_an_unregistered_layer_is_a_clear_error() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0).unwrap();
+    app.world_mut()
+        .spawn(RayCaster::<Unregistered>::for_layer(ray, RayMode::First));
+}
+
+#[test]
+#[should_panic(expected = "which is not registered")]
+fn a_camera_of_an_unregistered_layer_is_a_clear_error() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    let view = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 1.0, 0.1, 10.0).unwrap();
+    app.world_mut()
+        .spawn(CullingCamera::<Unregistered>::for_layer(view));
+}
