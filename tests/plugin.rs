@@ -405,27 +405,29 @@ fn spatial_query_answers_like_the_oracle_from_any_system() {
     fn ask(mut all: SpatialQuery, mut enemies: SpatialQuery<Enemy>, mut answers: ResMut<Answers>) {
         let origin = Vec3::new(-5.0, 0.5, 0.5);
         let ray = Ray::new(origin, Vec3::X, 100.0).unwrap();
-        answers.first = all.cast_ray(&ray).unwrap().map(|h| h.key);
+        let any = &SpatialQueryFilter::default();
+        answers.first = all.cast_ray(&ray, any).unwrap().map(|h| h.key);
         let mut neighbours = Vec::new();
-        all.nearest(Vec3::new(10.2, 0.5, 0.5), 3, None, &mut neighbours)
+        all.nearest(Vec3::new(10.2, 0.5, 0.5), 3, None, any, &mut neighbours)
             .unwrap();
         answers.nearest = neighbours.iter().map(|n| n.key).collect();
-        all.within_radius(Vec3::new(10.2, 0.5, 0.5), 2.0, &mut neighbours)
+        all.within_radius(Vec3::new(10.2, 0.5, 0.5), 2.0, any, &mut neighbours)
             .unwrap();
         answers.within = neighbours.iter().map(|n| n.key).collect();
         let mut found = Vec::new();
-        all.overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 1.0, &mut found)
+        all.overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 1.0, any, &mut found)
             .unwrap();
         found.sort_unstable();
         answers.sphere = std::mem::take(&mut found);
         all.overlapping(
             &Aabb::new(Vec3::new(4.0, 0.0, 0.0), Vec3::new(9.0, 1.0, 1.0)).unwrap(),
+            any,
             &mut found,
         );
         found.sort_unstable();
         answers.overlap = std::mem::take(&mut found);
         enemies
-            .nearest(Vec3::new(10.2, 0.5, 0.5), 2, None, &mut neighbours)
+            .nearest(Vec3::new(10.2, 0.5, 0.5), 2, None, any, &mut neighbours)
             .unwrap();
         answers.enemies_near = neighbours.iter().map(|n| n.key).collect();
     }
@@ -550,4 +552,182 @@ fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
         app.world().resource::<SpatialJoin<Enemy, Barrel>>().pairs(),
         [(enemy, barrel)]
     );
+}
+
+/// Every query of `SpatialQuery` with a filter answers as the oracle does
+/// with the filtered-out entities left out: the first allowed hit, the k
+/// nearest allowed entities, and so on; and a line of sight from inside
+/// the asking entity's own box finds the target, not itself.
+#[test]
+fn filtered_queries_answer_as_if_the_excluded_entities_were_not_there() {
+    #[derive(Resource, Default)]
+    struct Asked {
+        filter: SpatialQueryFilter,
+        first: Option<Entity>,
+        all: Vec<Entity>,
+        any: bool,
+        nearest: Vec<Entity>,
+        within: Vec<Entity>,
+        sphere: Vec<Entity>,
+        overlap: Vec<Entity>,
+    }
+
+    fn ask(mut spatial: SpatialQuery, mut asked: ResMut<Asked>) {
+        let asked = &mut *asked;
+        let filter = &asked.filter;
+        let ray = Ray::new(Vec3::new(0.5, 0.5, 0.5), Vec3::X, 100.0).unwrap();
+        asked.first = spatial.cast_ray(&ray, filter).unwrap().map(|h| h.key);
+        let mut hits = Vec::new();
+        spatial
+            .cast_ray_all(&ray, Some(5), filter, &mut hits)
+            .unwrap();
+        asked.all = hits.iter().map(|h| h.key).collect();
+        asked.any = spatial.ray_hits_any(&ray, filter).unwrap();
+        let mut near = Vec::new();
+        spatial
+            .nearest(Vec3::new(10.2, 0.5, 0.5), 4, None, filter, &mut near)
+            .unwrap();
+        asked.nearest = near.iter().map(|n| n.key).collect();
+        spatial
+            .within_radius(Vec3::new(10.2, 0.5, 0.5), 3.0, filter, &mut near)
+            .unwrap();
+        asked.within = near.iter().map(|n| n.key).collect();
+        let mut found = Vec::new();
+        spatial
+            .overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 2.0, filter, &mut found)
+            .unwrap();
+        found.sort_unstable();
+        asked.sphere = std::mem::take(&mut found);
+        let query = Aabb::new(Vec3::new(4.0, 0.0, 0.0), Vec3::new(9.0, 1.0, 1.0)).unwrap();
+        spatial.overlapping(&query, filter, &mut found);
+        found.sort_unstable();
+        asked.overlap = found;
+    }
+
+    let mut app = app();
+    app.init_resource::<Asked>()
+        .add_systems(PostUpdate, ask.after(SpatialIndexSystems::Sync));
+    let entities: Vec<Entity> = (0..40)
+        .map(|i| app.world_mut().spawn(unit_at(i as f32 * 0.75)).id())
+        .collect();
+    // The ray starts inside entity 0 (its own box, as a line of sight from
+    // an enemy does); exclude it, every third one, and by predicate those
+    // from 20 on.
+    let shooter = entities[0];
+    let excluded: Vec<Entity> = entities.iter().copied().step_by(3).collect();
+    let late: Vec<Entity> = entities[20..].to_vec();
+    let filter =
+        SpatialQueryFilter::excluding(excluded.clone()).with_predicate(move |e| !late.contains(&e));
+    app.world_mut().resource_mut::<Asked>().filter = filter.clone();
+    app.update();
+    let oracle = layer_oracle::<SpatialBounds>(app.world_mut());
+    let allowed = |list: Vec<Entity>| -> Vec<Entity> {
+        list.into_iter().filter(|e| filter.allows(*e)).collect()
+    };
+    let ray = Ray::new(Vec3::new(0.5, 0.5, 0.5), Vec3::X, 100.0).unwrap();
+    let hits: Vec<Entity> = allowed(
+        oracle
+            .ray_hits(&ray)
+            .unwrap()
+            .iter()
+            .map(|h| h.key)
+            .collect(),
+    );
+    let asked = app.world().resource::<Asked>();
+    assert_eq!(asked.first, hits.first().copied());
+    assert_ne!(
+        asked.first,
+        Some(shooter),
+        "the shooter does not see itself"
+    );
+    assert_eq!(asked.all, hits[..5.min(hits.len())]);
+    assert!(asked.any);
+    let all = entities.len();
+    let near = oracle
+        .nearest(Vec3::new(10.2, 0.5, 0.5), all, None)
+        .unwrap();
+    let near: Vec<Entity> = allowed(near.iter().map(|n| n.key).collect());
+    assert_eq!(asked.nearest, near[..4]);
+    let within = oracle
+        .within_radius(Vec3::new(10.2, 0.5, 0.5), 3.0)
+        .unwrap();
+    assert_eq!(
+        asked.within,
+        allowed(within.iter().map(|n| n.key).collect())
+    );
+    let sphere = oracle
+        .overlapping_sphere(Vec3::new(20.0, 0.5, 0.5), 2.0)
+        .unwrap();
+    assert_eq!(asked.sphere, allowed(sphere));
+    let query = Aabb::new(Vec3::new(4.0, 0.0, 0.0), Vec3::new(9.0, 1.0, 1.0)).unwrap();
+    assert_eq!(asked.overlap, allowed(oracle.overlapping(&query)));
+    assert!(!asked.overlap.is_empty() && asked.overlap.len() < oracle.overlapping(&query).len());
+}
+
+/// A caster ignores its own entity by default (its ray starts inside its
+/// own box, as a line of sight from an enemy does), hits it when told to,
+/// and hits only what its filter allows, in every mode.
+#[test]
+fn casters_ignore_themselves_and_obey_their_filter() {
+    let mut app = app();
+    // Five walls 10 m tall along +X; each shooter stands at its own height,
+    // in its own unit box, looking down +X.
+    let walls: Vec<Entity> = (1..6)
+        .map(|i| {
+            let x = i as f32 * 3.0;
+            let wall = Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 10.0, 1.0)).unwrap();
+            app.world_mut().spawn(SpatialBounds(wall)).id()
+        })
+        .collect();
+    let mut height = 0.0;
+    let mut shooter = |app: &mut App, mode: RayMode, setup: fn(RayCaster) -> RayCaster| {
+        let body = Aabb::new(
+            Vec3::new(0.0, height, 0.0),
+            Vec3::new(1.0, height + 1.0, 1.0),
+        )
+        .unwrap();
+        let ray = Ray::new(Vec3::new(0.5, height + 0.5, 0.5), Vec3::X, 100.0).unwrap();
+        height += 1.5;
+        app.world_mut()
+            .spawn((SpatialBounds(body), setup(RayCaster::new(ray, mode))))
+            .id()
+    };
+    let plain = shooter(&mut app, RayMode::First, |c| c);
+    let selfish = shooter(&mut app, RayMode::First, |c| c.hitting_self(true));
+    let all = shooter(&mut app, RayMode::All { limit: Some(2) }, |c| c);
+    let any = shooter(&mut app, RayMode::Any, |c| c);
+    let filtered: Vec<Entity> = [
+        RayMode::First,
+        RayMode::All { limit: Some(2) },
+        RayMode::Any,
+    ]
+    .into_iter()
+    .map(|mode| shooter(&mut app, mode, |c| c))
+    .collect();
+    let filter = SpatialQueryFilter::excluding([walls[0]]).with_predicate({
+        let skip = walls[1];
+        move |e| e != skip
+    });
+    for &e in &filtered {
+        app.world_mut().get_mut::<RayCaster>(e).unwrap().filter = filter.clone();
+    }
+    let blind = shooter(&mut app, RayMode::Any, |c| c);
+    app.world_mut().get_mut::<RayCaster>(blind).unwrap().filter =
+        SpatialQueryFilter::excluding(walls.clone());
+    app.update();
+    let hits = |app: &App, e: Entity| app.world().get::<RayCasterHits>(e).unwrap().clone();
+    let keys = |app: &App, e: Entity| -> Vec<Entity> {
+        hits(app, e).hits().iter().map(|h| h.key).collect()
+    };
+    assert_eq!(keys(&app, plain), [walls[0]]);
+    assert_eq!(
+        hits(&app, selfish).first().map(|h| (h.key, h.t)),
+        Some((selfish, 0.0))
+    );
+    assert_eq!(keys(&app, all), walls[..2]);
+    assert!(hits(&app, any).any());
+    assert_eq!(keys(&app, filtered[0]), [walls[2]]);
+    assert_eq!(keys(&app, filtered[1]), walls[2..4]);
+    assert!(hits(&app, filtered[2]).any());
+    assert!(!hits(&app, blind).any(), "only walls and itself on its ray");
 }

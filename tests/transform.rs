@@ -100,3 +100,68 @@ fn unusable_transforms_take_the_entity_out_and_are_counted() {
         );
     }
 }
+
+/// A caster on a moving, turning, scaled turret casts from the turret each
+/// frame, not from the world origin: its local ray follows the
+/// `GlobalTransform` (the scale stretches nothing), `t` is in metres, the
+/// hit's point lies on the target's face, and the turret's own box is
+/// ignored although the ray starts inside it.
+#[test]
+fn a_caster_follows_its_turret_and_does_not_see_itself() {
+    use bevy_rtree::{Ray, RayMode};
+    let mut app = app();
+    // Targets on a ring of radius 20 around the origin, every 30 degrees.
+    let targets: Vec<Entity> = (0..12)
+        .map(|i| {
+            let angle = i as f32 * std::f32::consts::TAU / 12.0;
+            let at = Vec3::new(angle.cos(), 0.0, -angle.sin()) * 20.0;
+            app.world_mut()
+                .spawn((Transform::from_translation(at), LocalBounds(local())))
+                .id()
+        })
+        .collect();
+    // Looking down its local +X, 100 m long, from inside its own box.
+    let ray = Ray::new(Vec3::ZERO, Vec3::X * 3.0, 100.0 / 3.0).unwrap();
+    let turret = app
+        .world_mut()
+        .spawn((
+            Transform::from_xyz(0.0, 0.0, 0.0).with_scale(Vec3::splat(2.0)),
+            LocalBounds(local()),
+            RayCaster::new(ray, RayMode::First),
+        ))
+        .id();
+    for (i, &target) in targets.iter().enumerate() {
+        let angle = i as f32 * std::f32::consts::TAU / 12.0;
+        app.world_mut()
+            .get_mut::<Transform>(turret)
+            .unwrap()
+            .rotation = Quat::from_rotation_y(angle);
+        app.update();
+        let hits = app.world().get::<RayCasterHits>(turret).unwrap();
+        let hit = hits.first().expect("the target ahead is hit");
+        assert_eq!(hit.key, target, "turned {i} times");
+        // The ray enters the target's axis-aligned box (half extent 1 m,
+        // centre 20 m out) where its dominant axis crosses a face.
+        let entry = 20.0 - 1.0 / angle.cos().abs().max(angle.sin().abs());
+        assert!(
+            (hit.t - entry).abs() < 1e-3,
+            "t = {} m, expected {entry}",
+            hit.t
+        );
+        let point = hits.point(&hit).unwrap();
+        let centre = Vec3::new(angle.cos(), 0.0, -angle.sin()) * 20.0;
+        assert!(
+            (point - centre).length() <= 1.0 * 3f32.sqrt() + 1e-3,
+            "{point}"
+        );
+    }
+    // Moved away from the ring's centre, up where nothing is: no hit.
+    app.world_mut()
+        .get_mut::<Transform>(turret)
+        .unwrap()
+        .translation = Vec3::new(0.0, 50.0, 0.0);
+    app.update();
+    let hits = app.world().get::<RayCasterHits>(turret).unwrap();
+    assert_eq!(hits.first(), None);
+    assert_eq!(hits.ray().unwrap().origin, Vec3::new(0.0, 50.0, 0.0));
+}

@@ -62,6 +62,7 @@ mod bevy_visibility;
 mod bounds;
 mod culling;
 mod diagnostics;
+mod filter;
 mod frame_queries;
 mod index;
 mod join;
@@ -84,6 +85,7 @@ pub use bevy_visibility::{
 pub use bounds::{NoSpatialIndex, SpatialBounds};
 pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
+pub use filter::SpatialQueryFilter;
 pub use index::SpatialIndex;
 pub use join::{PairEnded, PairStarted, SpatialJoin};
 pub use oracle::layer_oracle;

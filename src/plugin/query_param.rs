@@ -7,12 +7,17 @@ use super::bounds::SpatialBounds;
 use super::index::SpatialIndex;
 use glam::Vec3;
 
+use std::ops::ControlFlow;
+
+use super::filter::SpatialQueryFilter;
 use crate::geometry::{Aabb, Ray, SpatialError};
 use crate::query::{Neighbor, QueryWorkspace, RayHit};
 
 /// A system parameter for queries on the index of layer `L` (all indexed
 /// entities by default), answered at once, with a workspace kept by the
-/// system so repeated queries do not allocate.
+/// system so repeated queries do not allocate. Every query takes a
+/// [`SpatialQueryFilter`]: the entities it excludes (the asking entity's
+/// own, say) and a predicate; `&SpatialQueryFilter::default()` allows all.
 ///
 /// The index is current after
 /// [`SpatialIndexSystems::Sync`](super::SpatialIndexSystems::Sync); order
@@ -23,7 +28,9 @@ use crate::query::{Neighbor, QueryWorkspace, RayHit};
 /// use bevy_app::prelude::*;
 /// use bevy_ecs::prelude::*;
 /// use bevy_rtree::{Aabb, Ray};
-/// use bevy_rtree::plugin::{SpatialBounds, SpatialIndexPlugin, SpatialIndexSystems, SpatialQuery};
+/// use bevy_rtree::plugin::{
+///     SpatialBounds, SpatialIndexPlugin, SpatialIndexSystems, SpatialQuery, SpatialQueryFilter,
+/// };
 /// use glam::Vec3;
 ///
 /// #[derive(Resource, Default)]
@@ -31,7 +38,8 @@ use crate::query::{Neighbor, QueryWorkspace, RayHit};
 ///
 /// fn look(mut spatial: SpatialQuery, mut seen: ResMut<Seen>) {
 ///     let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0).unwrap();
-///     seen.0 = spatial.cast_ray(&ray).ok().flatten().map(|hit| hit.key);
+///     let everything = SpatialQueryFilter::default();
+///     seen.0 = spatial.cast_ray(&ray, &everything).ok().flatten().map(|hit| hit.key);
 /// }
 ///
 /// let mut app = App::new();
@@ -55,74 +63,108 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         &self.index
     }
 
-    /// The nearest hit of `ray` ([contract S5](crate::contract)).
-    pub fn cast_ray(&mut self, ray: &Ray) -> Result<Option<RayHit<Entity>>, SpatialError> {
-        self.index.tree().cast_ray(ray, &mut self.workspace)
+    /// The nearest hit of `ray` among the entities `filter` allows
+    /// ([contract S5](crate::contract)).
+    pub fn cast_ray(
+        &mut self,
+        ray: &Ray,
+        filter: &SpatialQueryFilter,
+    ) -> Result<Option<RayHit<Entity>>, SpatialError> {
+        let tree = self.index.tree();
+        tree.cast_ray_where(ray, &mut self.workspace, |e| filter.allows(e))
     }
 
-    /// Every hit of `ray`, sorted by `(t, entity)`, at most `limit` if given.
+    /// Every hit of `ray` among the entities `filter` allows, sorted by
+    /// `(t, entity)`, at most `limit` if given.
     pub fn cast_ray_all(
         &mut self,
         ray: &Ray,
         limit: Option<usize>,
+        filter: &SpatialQueryFilter,
         out: &mut Vec<RayHit<Entity>>,
     ) -> Result<(), SpatialError> {
+        let tree = self.index.tree();
+        tree.cast_ray_all_where(ray, limit, &mut self.workspace, out, |e| filter.allows(e))
+    }
+
+    /// Whether `ray` hits an entity `filter` allows (line of sight,
+    /// occlusion).
+    pub fn ray_hits_any(
+        &mut self,
+        ray: &Ray,
+        filter: &SpatialQueryFilter,
+    ) -> Result<bool, SpatialError> {
+        let tree = self.index.tree();
+        tree.ray_hits_any_where(ray, &mut self.workspace, |e| filter.allows(e))
+    }
+
+    /// Appends the entities `filter` allows whose box overlaps `query`
+    /// (closed boxes) to `out`, unordered. An invalid query box matches
+    /// nothing.
+    pub fn overlapping(
+        &mut self,
+        query: &Aabb,
+        filter: &SpatialQueryFilter,
+        out: &mut Vec<Entity>,
+    ) {
         self.index
             .tree()
-            .cast_ray_all(ray, limit, &mut self.workspace, out)
+            .visit_overlapping(query, &mut self.workspace, |entity, _| {
+                if filter.allows(entity) {
+                    out.push(entity);
+                }
+                ControlFlow::Continue(())
+            });
     }
 
-    /// Whether `ray` hits anything (line of sight, occlusion).
-    pub fn ray_hits_any(&mut self, ray: &Ray) -> Result<bool, SpatialError> {
-        self.index.tree().ray_hits_any(ray, &mut self.workspace)
-    }
-
-    /// Appends the entities whose box overlaps `query` (closed boxes) to
-    /// `out`, unordered. An invalid query box matches nothing.
-    pub fn overlapping(&mut self, query: &Aabb, out: &mut Vec<Entity>) {
-        self.index
-            .tree()
-            .overlapping_into(query, &mut self.workspace, out);
-    }
-
-    /// Appends the entities whose box meets the closed sphere to `out`,
-    /// unordered.
+    /// Appends the entities `filter` allows whose box meets the closed
+    /// sphere to `out`, unordered.
     pub fn overlapping_sphere(
         &mut self,
         center: Vec3,
         radius: f32,
+        filter: &SpatialQueryFilter,
         out: &mut Vec<Entity>,
     ) -> Result<(), SpatialError> {
         self.index
             .tree()
-            .overlapping_sphere_into(center, radius, &mut self.workspace, out)
+            .visit_sphere(center, radius, &mut self.workspace, |entity, _, _| {
+                if filter.allows(entity) {
+                    out.push(entity);
+                }
+                ControlFlow::Continue(())
+            })
     }
 
-    /// The `k` entities nearest to `point` (box distance, 0 inside), at most
-    /// `max_distance` away if given, sorted by `(distance, entity)`, into
-    /// `out` (cleared first).
+    /// The `k` entities `filter` allows nearest to `point` (box distance, 0
+    /// inside), at most `max_distance` away if given, sorted by
+    /// `(distance, entity)`, into `out` (cleared first).
     pub fn nearest(
         &mut self,
         point: Vec3,
         k: usize,
         max_distance: Option<f32>,
+        filter: &SpatialQueryFilter,
         out: &mut Vec<Neighbor<Entity>>,
     ) -> Result<(), SpatialError> {
-        self.index
-            .tree()
-            .nearest_into(point, k, max_distance, &mut self.workspace, out)
+        let tree = self.index.tree();
+        let ws = &mut self.workspace;
+        tree.nearest_where_into(point, k, max_distance, ws, out, |e| filter.allows(e))
     }
 
-    /// Every entity within `radius` of `point`, sorted by
+    /// Every entity `filter` allows within `radius` of `point`, sorted by
     /// `(distance, entity)`, into `out` (cleared first).
     pub fn within_radius(
         &mut self,
         point: Vec3,
         radius: f32,
+        filter: &SpatialQueryFilter,
         out: &mut Vec<Neighbor<Entity>>,
     ) -> Result<(), SpatialError> {
         self.index
             .tree()
-            .within_radius_into(point, radius, &mut self.workspace, out)
+            .within_radius_into(point, radius, &mut self.workspace, out)?;
+        out.retain(|n| filter.allows(n.key));
+        Ok(())
     }
 }

@@ -8,17 +8,28 @@ use bevy_ecs::prelude::*;
 
 use super::bounds::SpatialBounds;
 use super::diagnostics::DiagnosticsSink;
+use super::filter::SpatialQueryFilter;
 use super::index::SpatialIndex;
 use crate::geometry::{Ray, SpatialError};
-use crate::query::{RayHit, RayMode, RayResults};
+use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
 
 /// A ray cast every frame against layer `L` (all indexed entities by
 /// default); the answer lands in the entity's [`RayCasterHits`].
 ///
-/// Ray work runs only while at least one `RayCaster<L>` exists. The ray is
-/// in world space and taken as is: a caster that is itself indexed in the
-/// same layer can hit its own box (start the ray outside it, or keep the
-/// caster in another layer). One caster per entity.
+/// With feature `bevy`, the ray is in the entity's own space when the
+/// entity has a `GlobalTransform`, and follows it: each frame, after
+/// transform propagation, the origin is carried by the whole transform and
+/// the direction turned by its rotation (its scale stretches nothing), and
+/// the direction is normalised, so hits' `t` are distances in metres along
+/// the world ray (`max_t` is read in units of the given direction's
+/// length). Without a `GlobalTransform` the ray is in world space as given.
+/// [`RayCasterHits::ray`] is the ray that was cast.
+///
+/// The caster ignores its own entity (its ray usually starts inside its own
+/// box; set [`ignore_self`](Self::ignore_self) to `false` to hit it), and
+/// hits only what its [`filter`](Self::filter) allows. Ray work runs only
+/// while at least one `RayCaster<L>` exists; all casters of a layer are
+/// cast in one batch per mode.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -30,7 +41,9 @@ use crate::query::{RayHit, RayMode, RayResults};
 /// app.add_plugins(SpatialIndexPlugin::default());
 /// let wall = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::new(5.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0))?)).id();
 /// let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0)?;
-/// let caster = app.world_mut().spawn(RayCaster::new(ray, RayMode::First)).id();
+/// // The caster has a box of its own around the ray's start: ignored.
+/// let own_box = SpatialBounds(Aabb::new(Vec3::splat(-0.5), Vec3::splat(0.5))?);
+/// let caster = app.world_mut().spawn((RayCaster::new(ray, RayMode::First), own_box)).id();
 /// app.update();
 /// let hits = app.world().get::<RayCasterHits>(caster).unwrap();
 /// assert_eq!(hits.first().map(|h| (h.key, h.t)), Some((wall, 5.0)));
@@ -40,14 +53,40 @@ use crate::query::{RayHit, RayMode, RayResults};
 #[require(RayCasterHits<L>)]
 #[component(on_add = super::layer_must_be_registered::<L>)]
 pub struct RayCaster<L: Component = SpatialBounds> {
-    /// The ray, in world space ([contract S3](crate::contract)).
+    /// The ray ([contract S3](crate::contract)): in the entity's space if it
+    /// has a `GlobalTransform` (feature `bevy`), else in world space.
     pub ray: Ray,
     /// First hit, all hits (optionally limited) or any hit.
     pub mode: RayMode,
+    /// Which entities the ray may hit.
+    pub filter: SpatialQueryFilter,
+    /// Whether the caster's own entity is left out (the default).
+    pub ignore_self: bool,
     _layer: PhantomData<fn() -> L>,
 }
 
-impl_layer_generic_traits!(RayCaster<L> { ray, mode });
+impl<L: Component> Clone for RayCaster<L> {
+    fn clone(&self) -> Self {
+        RayCaster {
+            ray: self.ray,
+            mode: self.mode,
+            filter: self.filter.clone(),
+            ignore_self: self.ignore_self,
+            _layer: PhantomData,
+        }
+    }
+}
+
+impl<L: Component> std::fmt::Debug for RayCaster<L> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RayCaster")
+            .field("ray", &self.ray)
+            .field("mode", &self.mode)
+            .field("filter", &self.filter)
+            .field("ignore_self", &self.ignore_self)
+            .finish()
+    }
+}
 
 impl RayCaster {
     /// A caster against all indexed entities.
@@ -63,8 +102,33 @@ impl<L: Component> RayCaster<L> {
         RayCaster {
             ray,
             mode,
+            filter: SpatialQueryFilter::default(),
+            ignore_self: true,
             _layer: PhantomData,
         }
+    }
+
+    /// The same caster with another filter.
+    pub fn with_filter(mut self, filter: SpatialQueryFilter) -> Self {
+        self.filter = filter;
+        self
+    }
+
+    /// The same caster, hitting its own entity too if `hit_self`.
+    pub fn hitting_self(mut self, hit_self: bool) -> Self {
+        self.ignore_self = !hit_self;
+        self
+    }
+
+    /// Whether the caster on `caster` may hit `entity`.
+    #[inline]
+    fn allows(&self, caster: Entity, entity: Entity) -> bool {
+        !(self.ignore_self && entity == caster) && self.filter.allows(entity)
+    }
+
+    /// Whether every entity is allowed (nothing to check after a batch).
+    fn allows_all(&self) -> bool {
+        !self.ignore_self && self.filter.allows_all()
     }
 }
 
@@ -79,6 +143,8 @@ pub struct RayCasterHits<L: Component = SpatialBounds> {
     hits: Vec<RayHit<Entity>>,
     any: bool,
     error: Option<SpatialError>,
+    /// The ray that was cast, in world space.
+    ray: Option<Ray>,
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -88,6 +154,7 @@ impl<L: Component> Default for RayCasterHits<L> {
             hits: Vec::new(),
             any: false,
             error: None,
+            ray: None,
             _layer: PhantomData,
         }
     }
@@ -99,6 +166,7 @@ impl<L: Component> Clone for RayCasterHits<L> {
             hits: self.hits.clone(),
             any: self.any,
             error: self.error,
+            ray: self.ray,
             _layer: PhantomData,
         }
     }
@@ -141,16 +209,58 @@ impl<L: Component> RayCasterHits<L> {
     pub fn error(&self) -> Option<SpatialError> {
         self.error
     }
+
+    /// The ray that was cast this frame, in world space (the caster's ray
+    /// carried by its entity's transform, if it has one).
+    pub fn ray(&self) -> Option<Ray> {
+        self.ray
+    }
+
+    /// Where `hit` lies in world space: the cast ray's point at `hit.t`.
+    pub fn point(&self, hit: &RayHit<Entity>) -> Option<glam::Vec3> {
+        self.ray.map(|ray| ray.point_at(hit.t))
+    }
 }
 
 /// Scratch reused by the ray system from frame to frame.
 #[derive(Default)]
 pub(crate) struct RayScratch {
     workspace: FrameWorkspace,
+    /// For the casters whose filter turned down a batched answer.
+    single: QueryWorkspace,
     modes: Vec<RayMode>,
     rays: Vec<Ray>,
     casters: Vec<Entity>,
     results: RayResults<Entity>,
+}
+
+/// Where a caster is: its `GlobalTransform`, if it has one (feature `bevy`).
+#[cfg(feature = "bevy")]
+type Placement<'a> = Option<&'a bevy_transform::prelude::GlobalTransform>;
+/// Where a caster is: nothing to read without feature `bevy`.
+#[cfg(not(feature = "bevy"))]
+type Placement<'a> = ();
+
+/// The caster's ray in world space: carried by the entity's transform, with
+/// its direction turned (not stretched) and normalised, so that `t` is in
+/// metres and `max_t` keeps its length.
+#[cfg(feature = "bevy")]
+fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
+    let Some(transform) = placement else {
+        return *ray;
+    };
+    let length = ray.dir.length();
+    Ray {
+        origin: transform.transform_point(ray.origin),
+        dir: transform.rotation() * (ray.dir / length),
+        max_t: ray.max_t * length,
+    }
+}
+
+/// The caster's ray in world space: as given, without feature `bevy`.
+#[cfg(not(feature = "bevy"))]
+fn world_ray(ray: &Ray, _: Placement<'_>) -> Ray {
+    *ray
 }
 
 /// Observer: an entity that loses its `RayCaster<L>` loses its answer.
@@ -160,17 +270,20 @@ pub(crate) fn drop_hits<L: Component>(event: On<Remove<RayCaster<L>>>, mut comma
     }
 }
 
-/// Casts every ray of layer `L`: one batched traversal per distinct mode.
+/// Casts every ray of layer `L`: one batched traversal per distinct mode;
+/// then a caster whose filter (or its own entity) turned down what the
+/// batch found casts again alone, through the filter.
 pub(crate) fn cast_rays<L: Component>(
     index: Res<SpatialIndex<L>>,
-    casters: Query<(Entity, &RayCaster<L>)>,
+    casters: Query<(Entity, &RayCaster<L>, Placement<'_>)>,
     mut answers: Query<&mut RayCasterHits<L>, With<RayCaster<L>>>,
     mut scratch: Local<RayScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
     let scratch = &mut *scratch;
+    let tree = index.tree();
     scratch.modes.clear();
-    for (_, caster) in &casters {
+    for (_, caster, _) in &casters {
         if !scratch.modes.contains(&caster.mode) {
             scratch.modes.push(caster.mode);
         }
@@ -179,35 +292,65 @@ pub(crate) fn cast_rays<L: Component>(
         let mode = scratch.modes[m];
         scratch.rays.clear();
         scratch.casters.clear();
-        for (entity, caster) in &casters {
+        for (entity, caster, placement) in &casters {
             if caster.mode == mode {
-                scratch.rays.push(caster.ray);
+                scratch.rays.push(world_ray(&caster.ray, placement));
                 scratch.casters.push(entity);
             }
         }
         frame_queries::cast_rays(
-            index.tree(),
+            tree,
             &scratch.rays,
             mode,
             &mut scratch.workspace,
             &mut scratch.results,
         );
         sink.add(|d| d.rays.record(scratch.rays.len(), &mut scratch.workspace));
-        for (i, &caster) in scratch.casters.iter().enumerate() {
-            let Ok(mut answer) = answers.get_mut(caster) else {
+        for (i, (&entity, ray)) in scratch.casters.iter().zip(&scratch.rays).enumerate() {
+            let (Ok(mut answer), Ok((_, caster, _))) =
+                (answers.get_mut(entity), casters.get(entity))
+            else {
                 continue;
             };
             let answer = &mut *answer;
+            answer.ray = Some(*ray);
             answer.hits.clear();
-            match scratch.results.hits(i) {
-                Ok(hits) => {
-                    answer.hits.extend_from_slice(hits);
-                    answer.any = scratch.results.any(i).unwrap_or(false);
-                    answer.error = None;
-                }
+            answer.any = false;
+            answer.error = None;
+            let hits = match scratch.results.hits(i) {
+                Ok(hits) => hits,
                 Err(error) => {
-                    answer.any = false;
                     answer.error = Some(error);
+                    continue;
+                }
+            };
+            let any = scratch.results.any(i).unwrap_or(false);
+            let turned_down = !caster.allows_all()
+                && match mode {
+                    RayMode::Any => any,
+                    _ => hits.iter().any(|h| !caster.allows(entity, h.key)),
+                };
+            if !turned_down {
+                answer.hits.extend_from_slice(hits);
+                answer.any = any;
+                continue;
+            }
+            let allow = |e| caster.allows(entity, e);
+            let ws = &mut scratch.single;
+            // The ray was accepted by the batch, so it is valid here too.
+            match mode {
+                RayMode::First => {
+                    answer
+                        .hits
+                        .extend(tree.cast_ray_where(ray, ws, allow).ok().flatten());
+                    answer.any = !answer.hits.is_empty();
+                }
+                RayMode::All { limit } => {
+                    let _ = tree.cast_ray_all_where(ray, limit, ws, &mut answer.hits, allow);
+                    answer.any = !answer.hits.is_empty();
+                }
+                RayMode::Any => {
+                    answer.any = tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false);
                 }
             }
         }

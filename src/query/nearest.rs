@@ -267,6 +267,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<Neighbor<K>>,
     ) -> Result<(), SpatialError> {
+        self.nearest_where_into(point, k, max_distance, ws, out, |_| true)
+    }
+
+    /// [`RTree::nearest_into`] among the entries whose key `allow` accepts:
+    /// the `k` nearest of those.
+    pub fn nearest_where_into(
+        &self,
+        point: Vec3,
+        k: usize,
+        max_distance: Option<f32>,
+        ws: &mut QueryWorkspace,
+        out: &mut Vec<Neighbor<K>>,
+        allow: impl Fn(K) -> bool,
+    ) -> Result<(), SpatialError> {
         if k == 0 {
             return Err(SpatialError::InvalidCount);
         }
@@ -277,13 +291,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         // its top is the one to evict, and its distance the search limit.
         self.nearest_first(point, limit, ws, |key, _, distance_sq| {
             let candidate = Neighbor { key, distance_sq };
-            if out.len() < k {
-                let last = out.len();
-                out.push(candidate);
-                sift_up(out, last);
-            } else if candidate.rank(&out[0]) == Ordering::Less {
-                out[0] = candidate;
-                sift_down(out);
+            if allow(key) {
+                if out.len() < k {
+                    let last = out.len();
+                    out.push(candidate);
+                    sift_up(out, last);
+                } else if candidate.rank(&out[0]) == Ordering::Less {
+                    out[0] = candidate;
+                    sift_down(out);
+                }
             }
             ControlFlow::Continue(if out.len() < k {
                 limit

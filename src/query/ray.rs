@@ -539,16 +539,42 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ray: &Ray,
         ws: &mut QueryWorkspace,
     ) -> Result<Option<RayHit<K>>, SpatialError> {
+        self.cast_ray_where(ray, ws, |_| true)
+    }
+
+    /// [`RTree::cast_ray`] among the entries whose key `allow` accepts: the
+    /// first hit as if the others were not in the tree.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// tree.insert(1u32, Aabb::new(Vec3::new(-1.0, -1.0, -1.0), Vec3::ONE)?)?; // around the origin
+    /// tree.insert(2u32, Aabb::new(Vec3::new(4.0, -1.0, -1.0), Vec3::new(5.0, 1.0, 1.0))?)?;
+    /// let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0)?;
+    /// let ws = &mut QueryWorkspace::default();
+    /// assert_eq!(tree.cast_ray(&ray, ws)?.map(|h| h.key), Some(1));
+    /// assert_eq!(tree.cast_ray_where(&ray, ws, |k| k != 1)?.map(|h| (h.key, h.t)), Some((2, 4.0)));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn cast_ray_where(
+        &self,
+        ray: &Ray,
+        ws: &mut QueryWorkspace,
+        allow: impl Fn(K) -> bool,
+    ) -> Result<Option<RayHit<K>>, SpatialError> {
+        let max_t = ray.max_t;
         let mut best: Option<RayHit<K>> = None;
         self.visit_ray(ray, ws, |key, t| {
             let better = match best {
                 None => true,
                 Some(b) => t < b.t || (t == b.t && key < b.key),
             };
-            if better {
+            if better && allow(key) {
                 best = Some(RayHit { key, t });
             }
-            ControlFlow::Continue(best.map_or(t, |b| b.t))
+            ControlFlow::Continue(best.map_or(max_t, |b| b.t))
         })?;
         Ok(best)
     }
@@ -563,10 +589,25 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<RayHit<K>>,
     ) -> Result<(), SpatialError> {
+        self.cast_ray_all_where(ray, limit, ws, out, |_| true)
+    }
+
+    /// [`RTree::cast_ray_all`] among the entries whose key `allow` accepts
+    /// (the limit counts those only).
+    pub fn cast_ray_all_where(
+        &self,
+        ray: &Ray,
+        limit: Option<usize>,
+        ws: &mut QueryWorkspace,
+        out: &mut Vec<RayHit<K>>,
+        allow: impl Fn(K) -> bool,
+    ) -> Result<(), SpatialError> {
         let ray = ray.canonicalized()?;
         out.clear();
         self.visit_ray(&ray, ws, |key, t| {
-            out.push(RayHit { key, t });
+            if allow(key) {
+                out.push(RayHit { key, t });
+            }
             ControlFlow::Continue(f32::INFINITY)
         })?;
         out.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
@@ -578,10 +619,24 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Whether one ray hits anything (stops at the first hit found).
     pub fn ray_hits_any(&self, ray: &Ray, ws: &mut QueryWorkspace) -> Result<bool, SpatialError> {
+        self.ray_hits_any_where(ray, ws, |_| true)
+    }
+
+    /// Whether one ray hits an entry whose key `allow` accepts.
+    pub fn ray_hits_any_where(
+        &self,
+        ray: &Ray,
+        ws: &mut QueryWorkspace,
+        allow: impl Fn(K) -> bool,
+    ) -> Result<bool, SpatialError> {
+        let max_t = ray.max_t;
         let mut found = false;
-        self.visit_ray(ray, ws, |_, _| {
-            found = true;
-            ControlFlow::Break(())
+        self.visit_ray(ray, ws, |key, _| {
+            if allow(key) {
+                found = true;
+                return ControlFlow::Break(());
+            }
+            ControlFlow::Continue(max_t)
         })?;
         Ok(found)
     }
