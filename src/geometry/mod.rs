@@ -2,6 +2,8 @@
 //! define every answer of the index (the [contract](crate::contract)).
 
 mod aabb;
+#[cfg(feature = "bevy_camera")]
+mod bevy_types;
 mod error;
 mod frustum;
 mod frustum_sat;

@@ -42,8 +42,7 @@ pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
 /// Our frustum from Bevy's world-space half-spaces (`n·p + d > 0` inside,
 /// the same convention), re-based on the eye.
 pub(crate) fn convert(frustum: &BevyFrustum, eye: Vec3) -> Option<Frustum> {
-    let planes = frustum.half_spaces.map(|h| (Vec3::from(h.normal()), h.d()));
-    Frustum::from_world_planes(eye, planes).ok()
+    Frustum::from_bevy(frustum, eye).ok()
 }
 
 #[allow(clippy::type_complexity)]

@@ -1,0 +1,109 @@
+//! Conversions between the crate's geometry and Bevy's (feature
+//! `bevy_camera`): Bevy's `Aabb` component, its `Frustum`, `Ray3d` and
+//! `Dir3`.
+
+use bevy_camera::primitives::{Aabb as BevyAabb, Frustum as BevyFrustum};
+use bevy_math::Dir3;
+use bevy_shape::Ray3d;
+use glam::{Affine3A, Vec3};
+
+use super::{Aabb, Frustum, Ray, SpatialError};
+
+impl TryFrom<&BevyAabb> for Aabb {
+    type Error = SpatialError;
+
+    /// The box around Bevy's centre and half extents, rounded outward so
+    /// that it contains Bevy's box; an [`SpatialError::InvalidBox`] for a
+    /// NaN, infinite or negative input or a box beyond
+    /// [`MAX_COORD`](crate::MAX_COORD).
+    ///
+    /// ```
+    /// use bevy_camera::primitives::Aabb as BevyAabb;
+    /// use bevy_rtree::Aabb;
+    /// use glam::Vec3;
+    ///
+    /// let bevy = BevyAabb::from_min_max(Vec3::ZERO, Vec3::ONE);
+    /// let ours = Aabb::try_from(&bevy)?;
+    /// assert_eq!(ours, Aabb::new(Vec3::ZERO, Vec3::ONE)?);
+    /// assert_eq!(BevyAabb::from(ours), bevy);
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    fn try_from(aabb: &BevyAabb) -> Result<Aabb, SpatialError> {
+        Aabb::from_oriented(
+            aabb.center.into(),
+            aabb.half_extents.into(),
+            &Affine3A::IDENTITY,
+        )
+        .map(|outward| {
+            // Where the corners are exact in `f32`, keep them so.
+            let (min, max) = (Vec3::from(aabb.min()), Vec3::from(aabb.max()));
+            let exact = (min.as_dvec3() - aabb.center.as_dvec3() + aabb.half_extents.as_dvec3())
+                .cmpeq(glam::DVec3::ZERO)
+                .all()
+                && (max.as_dvec3() - aabb.center.as_dvec3() - aabb.half_extents.as_dvec3())
+                    .cmpeq(glam::DVec3::ZERO)
+                    .all();
+            if exact { Aabb { min, max } } else { outward }
+        })
+    }
+}
+
+impl From<Aabb> for BevyAabb {
+    /// Bevy's box with the same corners (Bevy stores the centre and half
+    /// extents, so far from the origin its corners may round).
+    fn from(aabb: Aabb) -> BevyAabb {
+        BevyAabb::from_min_max(aabb.min, aabb.max)
+    }
+}
+
+impl Frustum {
+    /// Bevy's `Frustum` (world-space half-spaces, as Bevy's camera keeps
+    /// it) re-based on `eye`, usually the camera's position. All six planes
+    /// are kept, the far one too (Bevy's own camera culling ignores it; see
+    /// the `BevyVisibilityPlugin` for Bevy's exact behaviour).
+    ///
+    /// ```
+    /// use bevy_camera::{CameraProjection, PerspectiveProjection};
+    /// use bevy_rtree::{Aabb, Frustum};
+    /// use bevy_transform::prelude::GlobalTransform;
+    /// use glam::Vec3;
+    ///
+    /// let camera = GlobalTransform::from_xyz(0.0, 0.0, 10.0);
+    /// let bevy = PerspectiveProjection::default().compute_frustum(&camera);
+    /// let frustum = Frustum::from_bevy(&bevy, camera.translation())?;
+    /// let ahead = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?;
+    /// assert!(frustum.intersects_conservative(&ahead));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn from_bevy(frustum: &BevyFrustum, eye: Vec3) -> Result<Frustum, SpatialError> {
+        let planes = frustum.half_spaces.map(|h| (Vec3::from(h.normal()), h.d()));
+        Frustum::from_world_planes(eye, planes)
+    }
+}
+
+impl Ray {
+    /// A ray from `origin` along Bevy's unit direction, `max_distance`
+    /// metres long (`f32::INFINITY` for no end): `t` is in metres.
+    ///
+    /// ```
+    /// use bevy_math::Dir3;
+    /// use bevy_rtree::Ray;
+    /// use glam::Vec3;
+    ///
+    /// let ray = Ray::from_dir(Vec3::ZERO, Dir3::NEG_Z, 50.0)?;
+    /// assert_eq!(ray.point_at(10.0), Vec3::new(0.0, 0.0, -10.0));
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn from_dir(origin: Vec3, direction: Dir3, max_distance: f32) -> Result<Ray, SpatialError> {
+        Ray::new(origin, direction.as_vec3(), max_distance)
+    }
+}
+
+impl TryFrom<Ray3d> for Ray {
+    type Error = SpatialError;
+
+    /// Bevy's `Ray3d` as an unbounded ray, `t` in metres.
+    fn try_from(ray: Ray3d) -> Result<Ray, SpatialError> {
+        Ray::from_dir(ray.origin, ray.direction, f32::INFINITY)
+    }
+}
