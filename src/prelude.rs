@@ -28,7 +28,7 @@ pub use crate::plugin::{BevyVisibilityPlugin, FollowBevyFrustum, Renderable};
 pub use crate::plugin::{
     CullingCamera, NoSpatialIndex, PairEnded, PairStarted, RayCaster, RayCasterHits, SpatialAppExt,
     SpatialBounds, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin, SpatialIndexSystems,
-    SpatialJoin, SpatialQuery, VisibleEntityList,
+    SpatialJoin, SpatialQuery, SpatialQueryFilter, VisibleEntityList,
 };
 pub use crate::query::{CullMode, JoinMode, QueryWorkspace, RayHit, RayMode};
 pub use crate::tree::{ProxyId, RTree, TreeSettings};

@@ -11,6 +11,10 @@ mod culling;
 #[path = "../examples/enemies_barrels.rs"]
 #[allow(dead_code)]
 mod enemies_barrels;
+#[cfg(feature = "bevy_camera")]
+#[path = "../examples/game.rs"]
+#[allow(dead_code)]
+mod game;
 #[path = "../examples/minimal.rs"]
 #[allow(dead_code)]
 mod minimal;
@@ -124,4 +128,45 @@ fn bevy_visibility_draws_what_bevy_would() {
     // Culled by the tree: the plugin's culling ran and visited its nodes.
     let d = *street.app.world().resource::<SpatialDiagnostics>();
     assert!(d.culling.runs == 1 && d.culling.nodes_visited > 0, "{d:?}");
+}
+
+/// The small game: every enemy either sees the player or is blocked by
+/// its wall (every other one); the warnings are the oracle's enemy-barrel
+/// pairs within 5 m; each turret's hit is the oracle's first hit of the ray
+/// it cast, its own truck left out; the cargo rides with its truck.
+#[cfg(feature = "bevy_camera")]
+#[test]
+fn the_game_sees_hits_and_warns_as_brute_force_does() {
+    use bevy_ecs::prelude::*;
+    use bevy_rtree::JoinMode;
+    use bevy_rtree::plugin::{SpatialBounds, layer_oracle};
+    let mut app = game::build();
+    for _ in 0..5 {
+        app.update();
+    }
+    let seen = app.world().resource::<game::Seen>();
+    assert_eq!((seen.enemies_seeing_player, seen.enemies_blocked), (8, 8));
+    let enemies = layer_oracle::<game::Enemy>(app.world_mut());
+    let barrels = layer_oracle::<game::Barrel>(app.world_mut());
+    let pairs = enemies
+        .cross_join(&barrels, 5.0, JoinMode::Euclidean)
+        .unwrap()
+        .len();
+    assert_eq!(app.world().resource::<game::Seen>().warnings, pairs);
+    assert!(pairs > 0);
+    let all = layer_oracle::<SpatialBounds>(app.world_mut());
+    let world = app.world_mut();
+    let mut turrets = world.query::<(Entity, &RayCasterHits, &ChildOf)>();
+    let mut checked = 0;
+    for (turret, hits, child_of) in turrets.iter(world) {
+        let ray = hits.ray().unwrap();
+        let want = all
+            .ray_hits(&ray)
+            .unwrap()
+            .into_iter()
+            .find(|h| h.key != turret && h.key != child_of.parent());
+        assert_eq!(hits.first().map(|h| h.key), want.map(|h| h.key));
+        checked += 1;
+    }
+    assert_eq!(checked, 4);
 }
