@@ -288,17 +288,8 @@ fn decide_proven(
     ranges: Option<&VisibleEntityRanges>,
 ) {
     let (inherited, mut view_visibility, class, mask, has_range) = item;
-    if !inherited.get() || !view.mask.intersects(mask.unwrap_or_default()) {
-        return;
-    }
-    if has_range && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)) {
-        return;
-    }
-    view_visibility.set_visible();
-    if let Some(class) = class {
-        for &id in class.iter() {
-            view.push(entity, id);
-        }
+    if may_be_seen(view, entity, inherited, mask, has_range, ranges) {
+        see(view, entity, &mut view_visibility, class);
     }
 }
 
@@ -324,10 +315,7 @@ fn decide(
         has_range,
     ) = item;
     let entity = *entity;
-    if !inherited.get() || !view.mask.intersects(mask.unwrap_or_default()) {
-        return;
-    }
-    if *has_range && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)) {
+    if !may_be_seen(view, entity, inherited, *mask, *has_range, ranges) {
         return;
     }
     if !proven && !*no_frustum_culling && !view.no_culling {
@@ -350,6 +338,33 @@ fn decide(
             return;
         }
     }
+    see(view, entity, view_visibility, *class);
+}
+
+/// Bevy's checks before any frustum test: visible in the hierarchy, on a
+/// layer the camera renders, within its visibility range of the camera.
+fn may_be_seen(
+    view: &View,
+    entity: Entity,
+    inherited: &InheritedVisibility,
+    mask: Option<&RenderLayers>,
+    has_range: bool,
+    ranges: Option<&VisibleEntityRanges>,
+) -> bool {
+    inherited.get()
+        && view.mask.intersects(mask.unwrap_or_default())
+        && !(has_range
+            && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)))
+}
+
+/// Marks `entity` seen by some view, and lists it for this one under each
+/// of its visibility classes.
+fn see(
+    view: &mut View,
+    entity: Entity,
+    view_visibility: &mut Mut<ViewVisibility>,
+    class: Option<&VisibilityClass>,
+) {
     view_visibility.set_visible();
     if let Some(class) = class {
         for &id in class.iter() {
