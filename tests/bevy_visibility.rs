@@ -477,3 +477,43 @@ fn boxes_at_a_camera_plane_are_decided_as_bevy_decides() {
         "both sides of the planes: {seen} seen"
     );
 }
+
+/// Entities spawned before the plugin is added (so without the component
+/// that keeps their index handle) are indexed and decided as Bevy decides.
+#[test]
+fn entities_spawned_before_the_plugin_are_served_too() {
+    let mut apps = [app(false), app(false)];
+    let mut entities = [Vec::new(), Vec::new()];
+    for (app, spawned) in apps.iter_mut().zip(&mut entities) {
+        let mut rng = SceneRng::new(3);
+        for _ in 0..500 {
+            let entity = app
+                .world_mut()
+                .spawn((
+                    Mesh3d::default(),
+                    random_aabb(&mut rng),
+                    random_transform(&mut rng, 50.0),
+                ))
+                .id();
+            spawned.push(entity);
+        }
+        app.world_mut()
+            .spawn((Camera3d::default(), Transform::from_xyz(0.0, 5.0, 60.0)));
+    }
+    apps[1].add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+    for frame in 0..3 {
+        for app in &mut apps {
+            app.update();
+        }
+        let seen = |app: &App, list: &[Entity]| -> Vec<bool> {
+            list.iter()
+                .map(|&e| app.world().get::<ViewVisibility>(e).unwrap().get())
+                .collect()
+        };
+        let (bevy, ours) = (seen(&apps[0], &entities[0]), seen(&apps[1], &entities[1]));
+        assert_eq!(bevy, ours, "frame {frame}");
+        assert!(bevy.iter().any(|&v| v) && !bevy.iter().all(|&v| v));
+    }
+    let index = apps[1].world().resource::<SpatialIndex<Renderable>>();
+    assert_eq!(index.len(), 500);
+}

@@ -107,9 +107,12 @@ impl Plugin for BevyVisibilityPlugin {
             );
         };
         debug_assert!(app.is_plugin_added::<SpatialIndexPlugin>());
+        // Entities with an `Aabb` spawned before this plugin keep their
+        // archetype, which a required component cannot change: they go
+        // without the handle, and their entries are looked up instead.
+        let _ = app.try_register_required_components::<BevyAabb, RenderableHandle>();
         app.insert_resource(SpatialIndex::<Renderable>::new(config.tree))
             .init_resource::<sync::Resync>()
-            .register_required_components::<BevyAabb, RenderableHandle>()
             .configure_sets(
                 PostUpdate,
                 RenderableSyncSystems

@@ -59,7 +59,12 @@ pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
 pub(super) fn sync_renderables(
     mut index: ResMut<SpatialIndex<Renderable>>,
     mut changed: Query<
-        (Entity, &BevyAabb, &GlobalTransform, &mut RenderableHandle),
+        (
+            Entity,
+            &BevyAabb,
+            &GlobalTransform,
+            Option<&mut RenderableHandle>,
+        ),
         (Indexable, Or<(Changed<GlobalTransform>, Changed<BevyAabb>)>),
     >,
     members: Query<(&BevyAabb, &GlobalTransform), Indexable>,
@@ -78,11 +83,15 @@ pub(super) fn sync_renderables(
     });
     let boxes = changed
         .iter()
-        .map(|(entity, aabb, transform, handle)| (entity, world_box(aabb, transform), handle.0))
+        .map(|(entity, aabb, transform, handle)| {
+            // Entities spawned before the plugin made the handle a required
+            // component have none: their entries are looked up instead.
+            (entity, world_box(aabb, transform), handle.and_then(|h| h.0))
+        })
         .chain(again);
     index::apply_changes(&mut index, boxes, &mut scratch, &sink, true);
     for &(entity, id) in &scratch.inserted {
-        if let Ok((.., mut handle)) = changed.get_mut(entity) {
+        if let Ok((.., Some(mut handle))) = changed.get_mut(entity) {
             handle.0 = Some(id);
         }
     }
