@@ -162,13 +162,6 @@ pub(crate) struct CullingScratch {
     cameras: Vec<Entity>,
 }
 
-/// Observer: an entity that loses its `CullingCamera<L>` loses its list.
-pub(crate) fn drop_list<L: Component>(event: On<Remove<CullingCamera<L>>>, mut commands: Commands) {
-    if let Ok(mut entity) = commands.get_entity(event.entity) {
-        entity.try_remove::<VisibleEntityList<L>>();
-    }
-}
-
 /// Culls every camera of layer `L`: one traversal per mode (and per eight
 /// cameras), then each camera's list is sorted and swapped into place.
 pub(crate) fn cull_cameras<L: Component>(

@@ -322,8 +322,16 @@ fn register_layer_queries<L: Component>(app: &mut App, config: &SpatialIndexConf
                 .run_if(any_with_component::<RayCaster<L>>),
         ),
     )
-    .add_observer(culling::drop_list::<L>)
-    .add_observer(raycast::drop_hits::<L>);
+    .add_observer(drop_answer::<CullingCamera<L>, VisibleEntityList<L>>)
+    .add_observer(drop_answer::<RayCaster<L>, RayCasterHits<L>>);
+}
+
+/// Observer: an entity that loses its camera or caster `Q` loses its
+/// answer `A`, so that no answer names entities long despawned.
+fn drop_answer<Q: Component, A: Component>(event: On<Remove<Q>>, mut commands: Commands) {
+    if let Ok(mut entity) = commands.get_entity(event.entity) {
+        entity.try_remove::<A>();
+    }
 }
 
 /// Component hook of the layer-generic components (cameras and casters of

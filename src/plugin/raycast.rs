@@ -230,7 +230,6 @@ pub(crate) struct RayScratch {
     single: QueryWorkspace,
     modes: Vec<RayMode>,
     rays: Vec<Ray>,
-    casters: Vec<Entity>,
     results: RayResults<Entity>,
 }
 
@@ -263,13 +262,6 @@ fn world_ray(ray: &Ray, _: Placement<'_>) -> Ray {
     *ray
 }
 
-/// Observer: an entity that loses its `RayCaster<L>` loses its answer.
-pub(crate) fn drop_hits<L: Component>(event: On<Remove<RayCaster<L>>>, mut commands: Commands) {
-    if let Ok(mut entity) = commands.get_entity(event.entity) {
-        entity.try_remove::<RayCasterHits<L>>();
-    }
-}
-
 /// Casts every ray of layer `L`: one batched traversal per distinct mode;
 /// then a caster whose filter (or its own entity) turned down what the
 /// batch found casts again alone, through the filter.
@@ -291,11 +283,9 @@ pub(crate) fn cast_rays<L: Component>(
     for m in 0..scratch.modes.len() {
         let mode = scratch.modes[m];
         scratch.rays.clear();
-        scratch.casters.clear();
-        for (entity, caster, placement) in &casters {
+        for (_, caster, placement) in &casters {
             if caster.mode == mode {
                 scratch.rays.push(world_ray(&caster.ray, placement));
-                scratch.casters.push(entity);
             }
         }
         frame_queries::cast_rays(
@@ -306,10 +296,11 @@ pub(crate) fn cast_rays<L: Component>(
             &mut scratch.results,
         );
         sink.add(|d| d.rays.record(scratch.rays.len(), &mut scratch.workspace));
-        for (i, (&entity, ray)) in scratch.casters.iter().zip(&scratch.rays).enumerate() {
-            let (Ok(mut answer), Ok((_, caster, _))) =
-                (answers.get_mut(entity), casters.get(entity))
-            else {
+        // The casters of this mode again, in the order their rays were
+        // gathered (a query walks its rows in the same order within a run).
+        let of_mode = casters.iter().filter(|(_, caster, _)| caster.mode == mode);
+        for (i, ((entity, caster, _), ray)) in of_mode.zip(&scratch.rays).enumerate() {
+            let Ok(mut answer) = answers.get_mut(entity) else {
                 continue;
             };
             let answer = &mut *answer;

@@ -23,7 +23,7 @@ use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
 use bevy_transform::TransformSystems;
 
 use super::index::SpatialIndex;
-use super::{SpatialIndexConfig, SpatialIndexPlugin, SpatialIndexSystems};
+use super::{SpatialIndexConfig, SpatialIndexSystems};
 
 /// The layer of Bevy's renderables: every entity that Bevy's CPU frustum
 /// culling tests (it has `GlobalTransform`, `InheritedVisibility` and
@@ -65,7 +65,7 @@ use super::{SpatialIndexConfig, SpatialIndexPlugin, SpatialIndexSystems};
 pub struct Renderable;
 
 /// Serves Bevy's camera visibility from the index: add it with (after)
-/// [`SpatialIndexPlugin`], in an app with Bevy's `CameraPlugin` (part of
+/// [`SpatialIndexPlugin`](super::SpatialIndexPlugin), in an app with Bevy's `CameraPlugin` (part of
 /// `DefaultPlugins`).
 ///
 /// It indexes Bevy's renderables in the layer [`Renderable`] and replaces
@@ -106,7 +106,6 @@ impl Plugin for BevyVisibilityPlugin {
                  app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))"
             );
         };
-        debug_assert!(app.is_plugin_added::<SpatialIndexPlugin>());
         // Entities with an `Aabb` spawned before this plugin keep their
         // archetype, which a required component cannot change: they go
         // without the handle, and their entries are looked up instead.
