@@ -75,6 +75,45 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
+    /// Calls `visit(key, exact_box)` for every entry whose box passes
+    /// `test`, pruning every node whose bounds fail it. `test` must be
+    /// monotone (a box that passes makes every box containing it pass), so
+    /// that no node holding a passing entry is pruned.
+    #[cfg_attr(not(feature = "bevy_light"), allow(dead_code))]
+    pub(crate) fn visit_boxes_where(
+        &self,
+        ws: &mut QueryWorkspace,
+        mut test: impl FnMut(&Aabb) -> bool,
+        mut visit: impl FnMut(K, &Aabb),
+    ) {
+        if self.is_empty() {
+            return;
+        }
+        ws.stack.clear();
+        ws.stack.push(self.root());
+        while let Some(index) = ws.stack.pop() {
+            let node = self.node(index);
+            ws.stats.nodes_visited += 1;
+            if node.is_leaf() {
+                ws.stats.entries_tested += node.len() as u64;
+            }
+            let mut lanes = node.used_lanes();
+            while lanes != 0 {
+                let lane = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                let bounds = node.lane_box(lane);
+                if !test(&bounds) {
+                    continue;
+                }
+                if node.is_leaf() {
+                    visit(self.key_of(node.child[lane]), &bounds);
+                } else {
+                    ws.stack.push(node.child[lane]);
+                }
+            }
+        }
+    }
+
     /// Appends the keys of all entries overlapping `query` to `out`
     /// (unordered; sort if you need an order).
     pub fn overlapping_into(&self, query: &Aabb, ws: &mut QueryWorkspace, out: &mut Vec<K>) {

@@ -152,6 +152,7 @@ pub(super) fn check_visibility_from_index(
             candidates(
                 &index,
                 frustum,
+                UNTESTED_BY_CAMERAS,
                 eye,
                 &mut scratch.workspace,
                 &mut view.candidates,
@@ -373,14 +374,24 @@ fn see(
     }
 }
 
-/// The tree's candidates for a camera: every entry whose box passes the
-/// camera's planes (all but the far plane, which Bevy's camera culling does
-/// not test), loosened by [`slack`] so that no box Bevy's own test accepts
-/// is missed; and whether each box lies inside the planes tightened by the
-/// same slack, which proves Bevy's tests would pass.
-fn candidates(
+/// The plane of a Bevy frustum that its camera culling does not test: the
+/// far plane.
+const UNTESTED_BY_CAMERAS: usize = 5;
+
+/// The plane of a shadow cascade that Bevy's directional light visibility
+/// does not test: the near plane (a caster before it still casts).
+#[cfg_attr(not(feature = "bevy_light"), allow(dead_code))]
+pub(super) const UNTESTED_BY_CASCADES: usize = 4;
+
+/// The tree's candidates for a Bevy frustum: every entry whose box passes
+/// its planes (all but `untested`, the one plane Bevy's test skips: far for
+/// cameras, near for shadow cascades), loosened by [`slack`] so that no box
+/// Bevy's own test accepts is missed; and whether each box lies inside the
+/// planes tightened by the same slack, which proves Bevy's tests would pass.
+pub(super) fn candidates(
     index: &SpatialIndex<Renderable>,
     frustum: &BevyFrustum,
+    untested: usize,
     eye: Vec3,
     ws: &mut QueryWorkspace,
     out: &mut Vec<(Entity, bool)>,
@@ -390,8 +401,8 @@ fn candidates(
     let reach =
         bounds.min.abs().max(bounds.max.abs()).max_element() * 3.0 + eye.abs().max_element();
     let (Some(loose), Some(tight)) = (
-        rebased(frustum, eye, reach, 1.0),
-        rebased(frustum, eye, reach, -1.0),
+        rebased(frustum, untested, eye, reach, 1.0),
+        rebased(frustum, untested, eye, reach, -1.0),
     ) else {
         // A frustum Bevy's tests cannot decide either (NaN planes): every
         // entry is a candidate, and Bevy's tests say what they say.
@@ -403,11 +414,20 @@ fn candidates(
     });
 }
 
-/// Bevy's planes but the far one, re-based on `eye` and moved outward
+/// Bevy's planes but `untested`, re-based on `eye` and moved outward
 /// (`side = 1`) or inward (`-1`) by [`slack`].
-fn rebased(frustum: &BevyFrustum, eye: Vec3, reach: f32, side: f64) -> Option<Frustum> {
+fn rebased(
+    frustum: &BevyFrustum,
+    untested: usize,
+    eye: Vec3,
+    reach: f32,
+    side: f64,
+) -> Option<Frustum> {
     let mut planes = [HalfSpace::INACTIVE; 6];
-    for (plane, half_space) in planes.iter_mut().zip(&frustum.half_spaces[..5]) {
+    for (i, (plane, half_space)) in planes.iter_mut().zip(&frustum.half_spaces).enumerate() {
+        if i == untested {
+            continue;
+        }
         let normal = Vec3::from(half_space.normal());
         let d = half_space.d();
         let offset = d as f64 + normal.as_dvec3().dot(eye.as_dvec3());
@@ -428,7 +448,7 @@ fn rebased(frustum: &BevyFrustum, eye: Vec3, reach: f32, side: f64) -> Option<Fr
 /// the largest coordinate of the index, plus the eye's), and `2^-16` of
 /// the magnitudes is over a hundred times both errors: a few centimetres
 /// on a 2 km map, candidates the exact test then decides.
-fn slack(normal: Vec3, d: f32, reach: f32) -> f64 {
+pub(super) fn slack(normal: Vec3, d: f32, reach: f32) -> f64 {
     let magnitude = normal.length() as f64 * reach as f64 + (d as f64).abs();
     magnitude / 65_536.0
 }

@@ -9,6 +9,8 @@
 //! camera's `VisibleEntities` come out as Bevy's own system makes them.
 
 mod cameras;
+#[cfg(feature = "bevy_light")]
+mod lights;
 mod sync;
 
 pub use sync::RenderableHandle;
@@ -151,12 +153,16 @@ impl Plugin for BevyVisibilityPlugin {
         // (a headless test) runs without it too.
         let taken_out = take_out_bevy_culling(app);
         app.insert_resource(BevyCullingTakenOut(taken_out));
+        #[cfg(feature = "bevy_light")]
+        add_light_visibility(app);
     }
 
     fn finish(&self, app: &mut App) {
         // Again once every plugin is built, in case Bevy's was added after
         // this one.
         let taken_out = take_out_bevy_culling(app);
+        #[cfg(feature = "bevy_light")]
+        take_out_bevy_light_visibility(app);
         let Some(mut done) = app.world_mut().get_resource_mut::<BevyCullingTakenOut>() else {
             return;
         };
@@ -185,4 +191,36 @@ fn take_out_bevy_culling(app: &mut App) -> bool {
         ScheduleCleanupPolicy::RemoveSystemsOnly,
     );
     matches!(removed, Ok(n) if n > 0)
+}
+
+/// Serves bevy_light's shadow visibility from the index too (feature
+/// `bevy_light`): a system in `SimulationLightSystems::CheckLightVisibility`,
+/// ordered as Bevy orders its own, in place of
+/// `check_point_light_mesh_visibility` and `check_dir_light_mesh_visibility`.
+#[cfg(feature = "bevy_light")]
+fn add_light_visibility(app: &mut App) {
+    use bevy_light::SimulationLightSystems;
+    app.add_systems(
+        PostUpdate,
+        lights::check_light_visibility_from_index
+            .in_set(SimulationLightSystems::CheckLightVisibility)
+            .after(VisibilitySystems::CalculateBounds)
+            .after(TransformSystems::Propagate)
+            .after(SimulationLightSystems::UpdateLightFrusta)
+            // Lights mark the casters they see visible, after the cameras
+            // and before the entities no view sees are hidden.
+            .after(VisibilitySystems::CheckVisibility)
+            .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+    );
+    take_out_bevy_light_visibility(app);
+}
+
+/// Takes bevy_light's two mesh visibility systems out of `PostUpdate`
+/// (where `LightPlugin` added them).
+#[cfg(feature = "bevy_light")]
+fn take_out_bevy_light_visibility(app: &mut App) {
+    use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
+    let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
+    let _ = app.remove_systems_in_set(PostUpdate, check_point_light_mesh_visibility, policy);
+    let _ = app.remove_systems_in_set(PostUpdate, check_dir_light_mesh_visibility, policy);
 }

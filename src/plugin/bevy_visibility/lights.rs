@@ -1,0 +1,442 @@
+//! Bevy's shadow visibility of lights from the index (feature
+//! `bevy_light`): the tree gives each point and spot light the shadow
+//! casters its range may reach and each directional light's cascade the
+//! casters its planes may see; Bevy's own tests decide every candidate, so
+//! the lists are Bevy's.
+
+use std::any::TypeId;
+
+use bevy_camera::primitives::{
+    Aabb as BevyAabb, CascadesFrusta, CubemapFrusta, Frustum as BevyFrustum, Sphere,
+};
+use bevy_camera::visibility::{
+    CascadesVisibleEntities, CubemapVisibleEntities, InheritedVisibility, NoCpuCulling,
+    NoFrustumCulling, RenderLayers, SetViewVisibility, ViewVisibility, VisibilityRange,
+    VisibleEntities, VisibleEntityRanges, VisibleMeshEntities,
+};
+use bevy_camera::{Camera, RenderTarget, ShadowLodOrigin};
+use bevy_ecs::entity::EntityHashSet;
+use bevy_ecs::prelude::*;
+use bevy_ecs::query::QueryData;
+use bevy_light::cluster::ClusterVisibilityClass;
+use bevy_light::{DirectionalLight, NotShadowCaster, PointLight, SpotLight, get_shadow_lod_origin};
+use bevy_mesh::Mesh3d;
+use bevy_transform::prelude::GlobalTransform;
+use glam::{DVec3, Vec3, Vec3A};
+
+use super::Renderable;
+use super::cameras::{UNTESTED_BY_CASCADES, candidates};
+use crate::plugin::index::SpatialIndex;
+use crate::query::QueryWorkspace;
+
+/// The entities Bevy's light visibility tests: meshes that cast shadows.
+type CasterFilter = (
+    Without<NotShadowCaster>,
+    Without<DirectionalLight>,
+    Without<NoCpuCulling>,
+    With<Mesh3d>,
+);
+
+/// What Bevy's light visibility reads of a caster (its own query; point
+/// and spot lights skip casters without `ViewVisibility`).
+type Caster<'a> = (
+    Entity,
+    &'a InheritedVisibility,
+    Option<&'a mut ViewVisibility>,
+    Option<&'a RenderLayers>,
+    Option<&'a BevyAabb>,
+    Option<&'a GlobalTransform>,
+    Has<VisibilityRange>,
+    Has<NoFrustumCulling>,
+);
+
+type CasterItem<'w, 's> = <Caster<'static> as QueryData>::Item<'w, 's>;
+
+/// The casters that are not in the tree by construction (the tree holds
+/// only entities with a box, a transform, `ViewVisibility` and frustum
+/// culling): each light tests them one by one, as Bevy does.
+type OutsideTheTree = (
+    CasterFilter,
+    Or<(
+        Without<BevyAabb>,
+        Without<GlobalTransform>,
+        Without<ViewVisibility>,
+        With<NoFrustumCulling>,
+    )>,
+);
+
+/// Scratch kept from frame to frame.
+#[derive(Default)]
+pub(super) struct LightScratch {
+    workspace: QueryWorkspace,
+    candidates: Vec<(Entity, bool)>,
+    one_by_one: Vec<Entity>,
+    checked: EntityHashSet,
+    faces: [Vec<Entity>; 6],
+}
+
+/// How a light's shadow views see a caster that passes Bevy's
+/// non-geometric checks.
+enum Shape<'a> {
+    /// A point light: the range sphere, then the six cube faces.
+    Point(&'a Sphere, &'a CubemapFrusta),
+    /// A spot light: the range sphere, then its frustum.
+    Spot(&'a Sphere, &'a BevyFrustum),
+    /// One cascade of a directional light (no near plane); `proven` when
+    /// the tree showed the box inside every tested plane.
+    Cascade(&'a BevyFrustum, bool),
+}
+
+/// Replaces bevy_light's `check_point_light_mesh_visibility` and
+/// `check_dir_light_mesh_visibility`, in
+/// `SimulationLightSystems::CheckLightVisibility`: the same lists, in the
+/// same order (sorted), and the same `ViewVisibility` for every caster.
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+pub(super) fn check_light_visibility_from_index(
+    seen_by_cameras: Query<&VisibleEntities>,
+    mut point_lights: Query<(
+        &PointLight,
+        &GlobalTransform,
+        &CubemapFrusta,
+        &mut CubemapVisibleEntities,
+        Option<&RenderLayers>,
+    )>,
+    mut spot_lights: Query<(
+        &SpotLight,
+        &GlobalTransform,
+        &BevyFrustum,
+        &mut VisibleMeshEntities,
+        Option<&RenderLayers>,
+    )>,
+    mut directional_lights: Query<
+        (
+            &DirectionalLight,
+            &CascadesFrusta,
+            &mut CascadesVisibleEntities,
+            Option<&RenderLayers>,
+            &ViewVisibility,
+        ),
+        Without<SpotLight>,
+    >,
+    mut casters: Query<Caster<'_>, CasterFilter>,
+    outside_the_tree: Query<Entity, OutsideTheTree>,
+    mut lod_cameras: Query<(Entity, &RenderTarget), With<Camera>>,
+    mut lod_origins: Query<Entity, With<ShadowLodOrigin>>,
+    mut point_and_spot: Query<Entity, Or<(With<PointLight>, With<SpotLight>)>>,
+    view_transforms: Query<&GlobalTransform, With<Camera>>,
+    index: Res<SpatialIndex<Renderable>>,
+    ranges: Option<Res<VisibleEntityRanges>>,
+    mut scratch: Local<LightScratch>,
+) {
+    let ranges = ranges.as_deref();
+    let scratch = &mut *scratch;
+    scratch.one_by_one.clear();
+    scratch.one_by_one.extend(outside_the_tree.iter());
+    // Entries whose box the index refused are tested one by one as well.
+    scratch.one_by_one.extend(index.unindexed());
+    scratch.one_by_one.sort_unstable();
+    scratch.one_by_one.dedup();
+    let lod_origin = get_shadow_lod_origin(
+        lod_cameras.transmute_lens_filtered(),
+        lod_origins.transmute_lens_filtered(),
+        point_and_spot.transmute_lens_filtered(),
+    );
+
+    // Point and spot lights, each once, as the cameras list them.
+    scratch.checked.clear();
+    for seen in &seen_by_cameras {
+        for &light in seen.get(TypeId::of::<ClusterVisibilityClass>()) {
+            if !scratch.checked.insert(light) {
+                continue;
+            }
+            if let Ok((point, transform, frusta, mut visible, mask)) = point_lights.get_mut(light) {
+                // A light without shadow maps keeps its lists, as in Bevy.
+                if !point.shadow_maps_enabled {
+                    continue;
+                }
+                let sphere = range_sphere(transform, point.range);
+                let mask = mask.cloned().unwrap_or_default();
+                sphere_candidates(&index, &sphere, scratch);
+                let shape = Shape::Point(&sphere, frusta);
+                decide_all(&mut casters, scratch, &shape, &mask, lod_origin, ranges);
+                for (face, list) in scratch.faces.iter_mut().enumerate() {
+                    list.sort_unstable();
+                    let dest = &mut visible.get_mut(face).entities;
+                    dest.clear();
+                    dest.append(list);
+                }
+            }
+            if let Ok((spot, transform, frustum, mut visible, mask)) = spot_lights.get_mut(light) {
+                if !spot.shadow_maps_enabled {
+                    continue;
+                }
+                let sphere = range_sphere(transform, spot.range);
+                let mask = mask.cloned().unwrap_or_default();
+                sphere_candidates(&index, &sphere, scratch);
+                let shape = Shape::Spot(&sphere, frustum);
+                decide_all(&mut casters, scratch, &shape, &mask, lod_origin, ranges);
+                let list = &mut scratch.faces[0];
+                list.sort_unstable();
+                visible.entities.clear();
+                visible.entities.append(list);
+            }
+        }
+    }
+
+    for (light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
+        // One list per cascade of every view that has cascades, as Bevy
+        // keeps them.
+        visible
+            .entities
+            .retain(|view, _| frusta.frusta.contains_key(view));
+        for (view, view_frusta) in &frusta.frusta {
+            visible
+                .entities
+                .entry(*view)
+                .or_default()
+                .resize(view_frusta.len(), VisibleMeshEntities::default());
+        }
+        if !light.shadow_maps_enabled || !light_visibility.get() {
+            visible.entities.clear();
+            continue;
+        }
+        let mask = mask.cloned().unwrap_or_default();
+        for (view, view_frusta) in &frusta.frusta {
+            let eye = view_transforms
+                .get(*view)
+                .map_or(Vec3::ZERO, GlobalTransform::translation);
+            let Some(lists) = visible.entities.get_mut(view) else {
+                continue;
+            };
+            for (frustum, list) in view_frusta.iter().zip(lists.iter_mut()) {
+                scratch.candidates.clear();
+                candidates(
+                    &index,
+                    frustum,
+                    UNTESTED_BY_CASCADES,
+                    eye,
+                    &mut scratch.workspace,
+                    &mut scratch.candidates,
+                );
+                let cascade = &mut scratch.faces[0];
+                cascade.clear();
+                for &(entity, proven) in &scratch.candidates {
+                    if let Ok(mut item) = casters.get_mut(entity) {
+                        let shape = Shape::Cascade(frustum, proven);
+                        decide(&mut item, &shape, &mask, Some(*view), ranges, cascade);
+                    }
+                }
+                for &entity in &scratch.one_by_one {
+                    if let Ok(mut item) = casters.get_mut(entity) {
+                        let shape = Shape::Cascade(frustum, false);
+                        decide(&mut item, &shape, &mask, Some(*view), ranges, cascade);
+                    }
+                }
+                cascade.sort_unstable();
+                list.entities.clear();
+                list.entities.append(cascade);
+            }
+        }
+    }
+}
+
+/// A light's range sphere, as Bevy's test builds it.
+fn range_sphere(transform: &GlobalTransform, range: f32) -> Sphere {
+    Sphere {
+        center: Vec3A::from(transform.translation()),
+        radius: range,
+    }
+}
+
+/// Decides every candidate of a point or spot light (and every caster
+/// outside the tree), filling `scratch.faces`.
+fn decide_all(
+    casters: &mut Query<Caster<'_>, CasterFilter>,
+    scratch: &mut LightScratch,
+    shape: &Shape<'_>,
+    mask: &RenderLayers,
+    lod_origin: Option<Entity>,
+    ranges: Option<&VisibleEntityRanges>,
+) {
+    scratch.faces.iter_mut().for_each(Vec::clear);
+    let one_by_one = scratch.one_by_one.iter();
+    for entity in scratch.candidates.iter().map(|c| &c.0).chain(one_by_one) {
+        let Ok(mut item) = casters.get_mut(*entity) else {
+            continue;
+        };
+        // Point and spot lights test only casters with `ViewVisibility`.
+        if item.2.is_none() {
+            continue;
+        }
+        decide_faces(
+            &mut item,
+            shape,
+            mask,
+            lod_origin,
+            ranges,
+            &mut scratch.faces,
+        );
+    }
+}
+
+/// [`decide`] for the lists of a point (six faces) or spot light (one).
+fn decide_faces(
+    item: &mut CasterItem<'_, '_>,
+    shape: &Shape<'_>,
+    mask: &RenderLayers,
+    lod_origin: Option<Entity>,
+    ranges: Option<&VisibleEntityRanges>,
+    faces: &mut [Vec<Entity>; 6],
+) {
+    let (entity, inherited, view_visibility, entity_mask, aabb, transform, has_range, nfc) = item;
+    if !may_cast(
+        *entity,
+        inherited,
+        *entity_mask,
+        *has_range,
+        mask,
+        lod_origin,
+        ranges,
+    ) {
+        return;
+    }
+    let (Some(aabb), Some(transform)) = (aabb, transform) else {
+        // No bounds: seen by every face.
+        mark(view_visibility);
+        let count = if matches!(shape, Shape::Point(..)) {
+            6
+        } else {
+            1
+        };
+        faces[..count].iter_mut().for_each(|f| f.push(*entity));
+        return;
+    };
+    let model = transform.affine();
+    match shape {
+        Shape::Point(sphere, frusta) => {
+            if !*nfc && !sphere.intersects_obb(aabb, &model) {
+                return;
+            }
+            for (frustum, face) in frusta.iter().zip(faces.iter_mut()) {
+                if *nfc || frustum.intersects_obb(aabb, &model, true, true) {
+                    mark(view_visibility);
+                    face.push(*entity);
+                }
+            }
+        }
+        Shape::Spot(sphere, frustum) => {
+            if !*nfc && !sphere.intersects_obb(aabb, &model) {
+                return;
+            }
+            if *nfc || frustum.intersects_obb(aabb, &model, true, true) {
+                mark(view_visibility);
+                faces[0].push(*entity);
+            }
+        }
+        Shape::Cascade(..) => unreachable!("cascades are decided by `decide`"),
+    }
+}
+
+/// Bevy's decision for one caster and one cascade of a directional light.
+fn decide(
+    item: &mut CasterItem<'_, '_>,
+    shape: &Shape<'_>,
+    mask: &RenderLayers,
+    view: Option<Entity>,
+    ranges: Option<&VisibleEntityRanges>,
+    out: &mut Vec<Entity>,
+) {
+    let Shape::Cascade(frustum, proven) = shape else {
+        return;
+    };
+    let (entity, inherited, view_visibility, entity_mask, aabb, transform, has_range, nfc) = item;
+    if !may_cast(
+        *entity,
+        inherited,
+        *entity_mask,
+        *has_range,
+        mask,
+        view,
+        ranges,
+    ) {
+        return;
+    }
+    if let (Some(aabb), Some(transform), false, false) = (aabb, transform, *nfc, *proven) {
+        // Shadow casters before the near plane still cast: no near plane.
+        if !frustum.intersects_obb(aabb, &transform.affine(), false, true) {
+            return;
+        }
+    }
+    mark(view_visibility);
+    out.push(*entity);
+}
+
+/// Bevy's checks before any shape test: visible in the hierarchy, on a
+/// layer the light renders, within its visibility range of `origin` (the
+/// cascade's view, or the shadow level-of-detail origin; with none, an
+/// entity with a range casts no point or spot shadow).
+fn may_cast(
+    entity: Entity,
+    inherited: &InheritedVisibility,
+    entity_mask: Option<&RenderLayers>,
+    has_range: bool,
+    mask: &RenderLayers,
+    origin: Option<Entity>,
+    ranges: Option<&VisibleEntityRanges>,
+) -> bool {
+    inherited.get()
+        && mask.intersects(entity_mask.unwrap_or_default())
+        && !(has_range
+            && ranges.is_some_and(|r| {
+                origin.is_none_or(|origin| !r.entity_is_in_range_of_view(entity, origin))
+            }))
+}
+
+fn mark(view_visibility: &mut Option<Mut<ViewVisibility>>) {
+    if let Some(view_visibility) = view_visibility {
+        view_visibility.set_visible();
+    }
+}
+
+/// The tree's candidates for a light's range sphere: every entry whose
+/// box `B` lies within `radius + |half extents of B|` of the centre (plus a
+/// slack for rounding). Bevy's sphere test accepts an oriented box only if
+/// its centre lies within the radius plus the box's reach along the line
+/// between the centres, which is no more than the half diagonal of the
+/// world box around it: so no box it accepts is missed, and the test is
+/// monotone (a larger box passes too), which lets it prune nodes.
+fn sphere_candidates(
+    index: &SpatialIndex<Renderable>,
+    sphere: &Sphere,
+    scratch: &mut LightScratch,
+) {
+    scratch.candidates.clear();
+    let tree = index.tree();
+    let Some(bounds) = tree.bounds() else { return };
+    let centre = Vec3::from(sphere.center).as_dvec3();
+    let radius = f64::from(sphere.radius);
+    let out = &mut scratch.candidates;
+    if !centre.is_finite() || !radius.is_finite() {
+        // A sphere Bevy's test cannot decide either: every entry is a
+        // candidate, and Bevy's test says what it says.
+        out.extend(tree.iter().map(|(_, entity, _)| (entity, false)));
+        return;
+    }
+    // Bevy's test runs in `f32` at world coordinates: 2^-16 of the
+    // magnitudes involved is far more than its rounding error.
+    let reach = f64::from(bounds.min.abs().max(bounds.max.abs()).max_element()) * 3.0
+        + centre.abs().max_element()
+        + radius.abs();
+    // A negative radius still accepts a box centred on the light.
+    let limit = radius.max(0.0) + reach / 65_536.0;
+    tree.visit_boxes_where(
+        &mut scratch.workspace,
+        |b| {
+            let (min, max) = (b.min.as_dvec3(), b.max.as_dvec3());
+            let gap: DVec3 = centre - centre.clamp(min, max);
+            let half_diagonal = ((max - min) * 0.5).length();
+            gap.length() <= limit + half_diagonal
+        },
+        |entity, _| out.push((entity, false)),
+    );
+}

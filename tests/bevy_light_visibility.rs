@@ -1,0 +1,412 @@
+//! Bevy's light shadow visibility served by the index, against Bevy
+//! itself: twin Apps from one seed with Bevy's `LightPlugin`, one running
+//! Bevy's own `check_point_light_mesh_visibility` and
+//! `check_dir_light_mesh_visibility`, the other with `BevyVisibilityPlugin`;
+//! after every frame every caster's `ViewVisibility` and every light's
+//! lists (cube faces, spot, cascades per view) must be the same.
+#![cfg(feature = "bevy_light")]
+
+use std::collections::HashMap;
+
+use bevy_app::prelude::*;
+use bevy_asset::{AssetApp, AssetPlugin, Assets};
+use bevy_camera::primitives::Aabb;
+use bevy_camera::visibility::{
+    CascadesVisibleEntities, CubemapVisibleEntities, NoCpuCulling, NoFrustumCulling, RenderLayers,
+    ViewVisibility, Visibility, VisibilityRange, VisibleMeshEntities,
+};
+use bevy_camera::{Camera, Camera3d, CameraPlugin};
+use bevy_ecs::prelude::*;
+use bevy_light::{DirectionalLight, LightPlugin, NotShadowCaster, PointLight, SpotLight};
+use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
+use bevy_mesh::{Mesh, Mesh3d};
+use bevy_rtree::plugin::{BevyVisibilityPlugin, Renderable, SpatialIndex, SpatialIndexPlugin};
+use bevy_rtree::scene::SceneRng;
+use bevy_transform::prelude::*;
+use glam::{Quat, Vec3, Vec3A};
+
+/// A headless App with Bevy's transforms, cameras and lights, and with the
+/// index serving visibility if `ours`.
+fn app(ours: bool) -> App {
+    let mut app = App::new();
+    app.add_plugins((
+        TaskPoolPlugin::default(),
+        AssetPlugin::default(),
+        TransformPlugin,
+        CameraPlugin,
+        LightPlugin,
+    ))
+    .insert_resource(Assets::<Mesh>::default())
+    .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
+    .init_asset::<bevy_image::Image>();
+    if ours {
+        app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+    }
+    app.finish();
+    app.cleanup();
+    app
+}
+
+/// Which kind of light a twin pair is.
+#[derive(Clone, Copy)]
+enum LightKind {
+    Point,
+    Spot,
+    Directional,
+}
+
+struct Twins {
+    apps: [App; 2],
+    casters: Vec<[Entity; 2]>,
+    lights: Vec<(LightKind, [Entity; 2])>,
+    cameras: Vec<[Entity; 2]>,
+    rng: SceneRng,
+}
+
+impl Twins {
+    fn new(seed: u64) -> Twins {
+        Twins {
+            apps: [app(false), app(true)],
+            casters: Vec::new(),
+            lights: Vec::new(),
+            cameras: Vec::new(),
+            rng: SceneRng::new(seed),
+        }
+    }
+
+    /// Runs `f` on both worlds with the same random draws.
+    fn both<R>(&mut self, mut f: impl FnMut(&mut World, &mut SceneRng, usize) -> R) -> [R; 2] {
+        let state = self.rng.clone();
+        let a = f(self.apps[0].world_mut(), &mut self.rng, 0);
+        self.rng = state;
+        let b = f(self.apps[1].world_mut(), &mut self.rng, 1);
+        [a, b]
+    }
+
+    fn spawn_caster(&mut self) {
+        let parent = (self.rng.below(10) == 0 && !self.casters.is_empty())
+            .then(|| self.casters[self.rng.below(self.casters.len())]);
+        let pair = self.both(|world, rng, side| {
+            let mut entity = world.spawn((
+                Mesh3d::default(),
+                random_transform(rng),
+                random_visibility(rng),
+            ));
+            // One in twelve has no box (Bevy's lights see it everywhere).
+            if rng.below(12) != 0 {
+                entity.insert(random_aabb(rng));
+            }
+            match rng.below(14) {
+                0 => {
+                    entity.insert(NoFrustumCulling);
+                }
+                1 => {
+                    entity.insert(NoCpuCulling);
+                }
+                2 => {
+                    entity.insert(NotShadowCaster);
+                }
+                3 => {
+                    entity.insert(RenderLayers::layer(1));
+                }
+                4 => {
+                    entity.insert(VisibilityRange::abrupt(0.0, rng.range(10.0, 80.0)));
+                }
+                _ => {}
+            }
+            if let Some(parent) = parent {
+                entity.insert(ChildOf(parent[side]));
+            }
+            entity.id()
+        });
+        self.casters.push(pair);
+    }
+
+    fn spawn_camera(&mut self, active: bool) {
+        let pair = self.both(|world, rng, _| {
+            let eye = Vec3::new(rng.range(-40.0, 40.0), 5.0, rng.range(-40.0, 40.0));
+            let look = Quat::from_rotation_y(rng.range(0.0, 6.3)) * Quat::from_rotation_x(-0.2);
+            world
+                .spawn((
+                    Camera3d::default(),
+                    Camera {
+                        is_active: active,
+                        ..Camera::default()
+                    },
+                    Transform::from_translation(eye).with_rotation(look),
+                ))
+                .id()
+        });
+        self.cameras.push(pair);
+    }
+
+    fn spawn_light(&mut self, kind: LightKind) {
+        let pair = self.both(|world, rng, _| {
+            let at = Vec3::new(
+                rng.range(-50.0, 50.0),
+                rng.range(1.0, 15.0),
+                rng.range(-50.0, 50.0),
+            );
+            let shadows = rng.below(5) != 0;
+            let mut light = match kind {
+                LightKind::Point => world.spawn((
+                    PointLight {
+                        range: rng.range(3.0, 30.0),
+                        shadow_maps_enabled: shadows,
+                        ..PointLight::default()
+                    },
+                    Transform::from_translation(at),
+                )),
+                LightKind::Spot => world.spawn((
+                    SpotLight {
+                        range: rng.range(5.0, 40.0),
+                        outer_angle: rng.range(0.2, 1.2),
+                        shadow_maps_enabled: shadows,
+                        ..SpotLight::default()
+                    },
+                    Transform::from_translation(at).looking_at(Vec3::ZERO, Vec3::Y),
+                )),
+                LightKind::Directional => world.spawn((
+                    DirectionalLight {
+                        shadow_maps_enabled: shadows,
+                        ..DirectionalLight::default()
+                    },
+                    Transform::from_xyz(1.0, 3.0, 2.0).looking_at(Vec3::ZERO, Vec3::Y),
+                )),
+            };
+            if rng.below(6) == 0 {
+                light.insert(RenderLayers::layer(1));
+            }
+            light.id()
+        });
+        self.lights.push((kind, pair));
+    }
+
+    /// One frame of random changes, the same in both worlds.
+    fn mutate(&mut self) {
+        let n = self.casters.len();
+        for _ in 0..n / 10 {
+            let pair = self.casters[self.rng.below(n)];
+            let action = self.rng.below(16);
+            self.both(|world, rng, side| {
+                let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
+                    return;
+                };
+                match action {
+                    0..=8 => {
+                        if let Some(mut t) = entity.get_mut::<Transform>() {
+                            t.translation +=
+                                Vec3::new(rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0));
+                            t.rotate_y(rng.range(-0.3, 0.3));
+                        }
+                    }
+                    9..=10 => {
+                        entity.insert(random_transform(rng));
+                    }
+                    11 => {
+                        entity.insert(random_visibility(rng));
+                    }
+                    12 => {
+                        if entity.contains::<NotShadowCaster>() {
+                            entity.remove::<NotShadowCaster>();
+                        } else {
+                            entity.insert(NotShadowCaster);
+                        }
+                    }
+                    13 => {
+                        // Bad input as Bevy sees it.
+                        let bad = [
+                            Transform::from_scale(Vec3::ZERO),
+                            Transform::from_xyz(f32::NAN, 0.0, 0.0),
+                        ][rng.below(2)];
+                        entity.insert(bad);
+                    }
+                    14 => {
+                        entity.insert(random_aabb(rng));
+                    }
+                    _ => {
+                        entity.despawn();
+                    }
+                }
+            });
+        }
+        for _ in 0..n / 50 {
+            self.spawn_caster();
+        }
+        for (_, pair) in self.lights.clone() {
+            self.both(|world, rng, side| {
+                let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
+                t.translation += Vec3::new(rng.range(-2.0, 2.0), 0.0, rng.range(-2.0, 2.0));
+            });
+        }
+        for pair in self.cameras.clone() {
+            self.both(|world, rng, side| {
+                let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
+                t.translation += Vec3::new(rng.range(-3.0, 3.0), 0.0, rng.range(-3.0, 3.0));
+                t.rotate_y(rng.range(-0.4, 0.4));
+            });
+        }
+    }
+
+    /// Every caster's `ViewVisibility` and every light's lists, mapped to
+    /// spawn order, are the same in both worlds; returns how many entries
+    /// the lists of point, spot and directional lights hold.
+    fn check(&self, frame: usize) -> [usize; 3] {
+        for (i, pair) in self.casters.iter().enumerate() {
+            let [bevy, ours] = [0, 1].map(|side| {
+                let world = self.apps[side].world();
+                world
+                    .get_entity(pair[side])
+                    .ok()
+                    .and_then(|e| e.get::<ViewVisibility>().map(|v| v.get()))
+            });
+            assert_eq!(bevy, ours, "frame {frame}: ViewVisibility of caster {i}");
+        }
+        let [bevy, ours] = [0, 1].map(|side| self.light_lists(side));
+        for (l, (b, o)) in bevy.iter().zip(&ours).enumerate() {
+            assert_eq!(b, o, "frame {frame}: the lists of light {l}");
+        }
+        let mut listed = [0; 3];
+        for ((kind, _), lists) in self.lights.iter().zip(&bevy) {
+            let entries: usize = lists.iter().map(Vec::len).sum();
+            listed[*kind as usize] += entries;
+        }
+        listed
+    }
+
+    /// Each light's lists (six faces, one spot list, or one list per
+    /// cascade of each camera), as spawn indices, sorted.
+    fn light_lists(&self, side: usize) -> Vec<Vec<Vec<usize>>> {
+        let world = self.apps[side].world();
+        let spawned: HashMap<Entity, usize> = self
+            .casters
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (p[side], i))
+            .collect();
+        let map = |list: &VisibleMeshEntities| {
+            assert!(list.entities.is_sorted(), "sorted, as Bevy sorts them");
+            let mut out: Vec<usize> = list.entities.iter().map(|e| spawned[e]).collect();
+            out.sort_unstable();
+            out
+        };
+        self.lights
+            .iter()
+            .map(|(kind, pair)| {
+                let light = world.entity(pair[side]);
+                match kind {
+                    LightKind::Point => light
+                        .get::<CubemapVisibleEntities>()
+                        .unwrap()
+                        .iter()
+                        .map(map)
+                        .collect(),
+                    LightKind::Spot => vec![map(light.get::<VisibleMeshEntities>().unwrap())],
+                    LightKind::Directional => {
+                        let cascades = light.get::<CascadesVisibleEntities>().unwrap();
+                        let mut lists = Vec::new();
+                        for camera in &self.cameras {
+                            let per_view = cascades.entities.get(&camera[side]);
+                            lists.push(vec![per_view.map_or(usize::MAX, Vec::len)]);
+                            lists.extend(per_view.into_iter().flatten().map(map));
+                        }
+                        lists
+                    }
+                }
+            })
+            .collect()
+    }
+
+    fn update(&mut self) {
+        self.apps.iter_mut().for_each(App::update);
+    }
+}
+
+fn random_transform(rng: &mut SceneRng) -> Transform {
+    let at = Vec3::new(
+        rng.range(-60.0, 60.0),
+        rng.range(-2.0, 12.0),
+        rng.range(-60.0, 60.0),
+    );
+    let turn = Quat::from_euler(
+        glam::EulerRot::YXZ,
+        rng.range(0.0, 6.3),
+        rng.range(-1.0, 1.0),
+        0.0,
+    );
+    let scale = if rng.below(4) == 0 {
+        Vec3::new(
+            rng.range(0.2, 3.0),
+            rng.range(0.2, 3.0),
+            rng.range(0.2, 3.0),
+        )
+    } else {
+        Vec3::ONE
+    };
+    Transform {
+        translation: at,
+        rotation: turn,
+        scale,
+    }
+}
+
+fn random_aabb(rng: &mut SceneRng) -> Aabb {
+    Aabb {
+        center: Vec3A::new(
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+        ),
+        half_extents: Vec3A::new(
+            rng.range(0.0, 3.0),
+            rng.range(0.0, 3.0),
+            rng.range(0.0, 3.0),
+        ),
+    }
+}
+
+fn random_visibility(rng: &mut SceneRng) -> Visibility {
+    [
+        Visibility::Inherited,
+        Visibility::Inherited,
+        Visibility::Inherited,
+        Visibility::Hidden,
+        Visibility::Visible,
+    ][rng.below(5)]
+}
+
+/// Random scenes of two thousand casters, point, spot and directional
+/// lights with and without shadows, two active cameras and an inactive
+/// one, over frames of moves, teleports, toggles, bad transforms,
+/// despawns and respawns.
+#[test]
+fn lights_see_what_bevy_lights_see_every_frame() {
+    for seed in 0..2 {
+        let mut twins = Twins::new(seed);
+        for _ in 0..2_000 {
+            twins.spawn_caster();
+        }
+        twins.spawn_camera(true);
+        twins.spawn_camera(true);
+        twins.spawn_camera(false);
+        for _ in 0..6 {
+            twins.spawn_light(LightKind::Point);
+        }
+        for _ in 0..3 {
+            twins.spawn_light(LightKind::Spot);
+        }
+        twins.spawn_light(LightKind::Directional);
+        twins.spawn_light(LightKind::Directional);
+        let mut listed = [0; 3];
+        for frame in 0..40 {
+            twins.update();
+            let seen = twins.check(frame);
+            listed.iter_mut().zip(seen).for_each(|(l, s)| *l += s);
+            twins.mutate();
+        }
+        // Point, spot and directional lights each see enough to compare.
+        assert!(listed.iter().all(|&l| l > 2_000), "{listed:?}");
+        let index = twins.apps[1].world().resource::<SpatialIndex<Renderable>>();
+        index.validate().unwrap();
+    }
+}
