@@ -6,9 +6,13 @@
 //! it; the two run in alternating blocks of frames, and each case reports
 //! the median ratio of neighbouring blocks (Bevy's time ÷ ours).
 //!
-//! `cargo bench --bench bevy_visibility --features bevy_camera`
+//! With feature `bevy_light`, the light cases time bevy_light's shadow
+//! visibility (`SimulationLightSystems::CheckLightVisibility`) the same way,
+//! in a second row.
+//!
+//! `cargo bench --bench bevy_visibility --features bevy_light`
 //! (add `multi_threaded` for Bevy's parallel executor; `-- --quick` for a
-//! short run).
+//! short run; words after `--` pick cases by name).
 
 use std::any::TypeId;
 use std::time::Instant;
@@ -32,11 +36,14 @@ use bevy_transform::TransformSystems;
 use bevy_transform::prelude::*;
 use glam::{EulerRot, Quat, Vec3, Vec3A};
 
-/// When this frame's visibility step started, and how long the last took.
+/// When this frame's visibility step started, and how long the last took;
+/// likewise for the lights' step.
 #[derive(Resource, Default)]
 struct StepTimer {
     start: Option<Instant>,
     last_us: f64,
+    light_start: Option<Instant>,
+    light_us: f64,
 }
 
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
@@ -50,6 +57,43 @@ fn stop_step(mut timer: ResMut<StepTimer>) {
     if let Some(start) = timer.start.take() {
         timer.last_us = start.elapsed().as_secs_f64() * 1e6;
     }
+}
+
+#[cfg(feature = "bevy_light")]
+fn start_light_step(mut timer: ResMut<StepTimer>) {
+    timer.light_start = Some(Instant::now());
+}
+
+#[cfg(feature = "bevy_light")]
+fn stop_light_step(mut timer: ResMut<StepTimer>) {
+    if let Some(start) = timer.light_start.take() {
+        timer.light_us = start.elapsed().as_secs_f64() * 1e6;
+    }
+}
+
+/// Bevy's `LightPlugin` (which needs assets and images), with timers
+/// around its shadow visibility step.
+#[cfg(feature = "bevy_light")]
+fn add_lights(app: &mut App) {
+    use bevy_asset::AssetApp;
+    use bevy_light::SimulationLightSystems;
+    app.add_plugins((
+        bevy_asset::AssetPlugin::default(),
+        bevy_light::LightPlugin,
+    ))
+    .init_asset::<bevy_image::Image>()
+    .add_systems(
+        PostUpdate,
+        (
+            start_light_step
+                .after(VisibilitySystems::CheckVisibility)
+                .after(SimulationLightSystems::UpdateLightFrusta)
+                .before(SimulationLightSystems::CheckLightVisibility),
+            stop_light_step
+                .after(SimulationLightSystems::CheckLightVisibility)
+                .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+        ),
+    );
 }
 
 /// A mover: a fresh tenth (or hundredth) of them moves each frame.
@@ -86,15 +130,22 @@ fn turn_cameras(motion: Res<Motion>, mut cameras: Query<&mut Transform, With<Cam
     }
 }
 
-/// A headless App with Bevy's cameras and transforms; the index serves
-/// visibility if `ours`.
-fn app(ours: bool) -> App {
+/// A headless App with Bevy's cameras and transforms (and lights if
+/// `lights`); the index serves visibility if `ours`.
+fn app(ours: bool, lights: bool) -> App {
     let mut app = App::new();
     app.add_plugins((TransformPlugin, CameraPlugin))
         .insert_resource(Assets::<Mesh>::default())
         .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
         .init_resource::<StepTimer>()
         .add_systems(Update, (move_entities, turn_cameras));
+    #[cfg(feature = "bevy_light")]
+    if lights {
+        app.add_plugins(TaskPoolPlugin::default());
+        add_lights(&mut app);
+    }
+    #[cfg(not(feature = "bevy_light"))]
+    let _ = lights;
     if ours {
         app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
             .configure_sets(
@@ -131,6 +182,8 @@ fn app(ours: bool) -> App {
             ),
         );
     }
+    app.finish();
+    app.cleanup();
     app
 }
 
@@ -138,6 +191,8 @@ fn app(ours: bool) -> App {
 struct Case {
     name: &'static str,
     spawn: fn(&mut World, u64),
+    /// Whether the case has Bevy's lights (and times their step).
+    lights: bool,
     /// One entity in `period` moves each frame.
     period: u32,
     turn: f32,
@@ -193,6 +248,46 @@ fn town(world: &mut World, seed: u64, cameras: usize) {
     }
 }
 
+/// The town with 16 shadow-casting point lights of 15 m range in front of
+/// its one camera.
+#[cfg(feature = "bevy_light")]
+fn town_point_lights(world: &mut World, seed: u64) {
+    town(world, seed, 1);
+    let mut rng = SceneRng::new(seed ^ 0x119);
+    let ahead = Quat::from_rotation_y(0.0) * Vec3::NEG_Z;
+    for _ in 0..16 {
+        let along = ahead * rng.range(20.0, 120.0);
+        let side = Vec3::new(rng.range(-30.0, 30.0), 0.0, 0.0);
+        let at = TownScene::eye() + along + side - Vec3::Y * TownScene::eye().y * 0.5;
+        world.spawn((
+            bevy_light::PointLight {
+                range: 15.0,
+                shadow_maps_enabled: true,
+                ..bevy_light::PointLight::default()
+            },
+            Transform::from_translation(at),
+        ));
+    }
+}
+
+/// The town with a shadow-casting directional light of 4 cascades.
+#[cfg(feature = "bevy_light")]
+fn town_sun(world: &mut World, seed: u64) {
+    town(world, seed, 1);
+    world.spawn((
+        bevy_light::DirectionalLight {
+            shadow_maps_enabled: true,
+            ..bevy_light::DirectionalLight::default()
+        },
+        bevy_light::CascadeShadowConfigBuilder {
+            num_cascades: 4,
+            ..bevy_light::CascadeShadowConfigBuilder::default()
+        }
+        .build(),
+        Transform::from_xyz(1.0, 3.0, 2.0).looking_at(Vec3::ZERO, Vec3::Y),
+    ));
+}
+
 /// A large 2D-like map: `count` flat tiles over a square 20 km wide, and
 /// an orthographic camera looking down on about 2 % of it.
 fn large_map(world: &mut World, seed: u64) {
@@ -239,24 +334,38 @@ fn large_map(world: &mut World, seed: u64) {
     ));
 }
 
-/// Runs `frames` frames and returns the median step time in µs.
-fn block(app: &mut App, frames: usize) -> f64 {
-    let mut times: Vec<f64> = (0..frames)
+/// Runs `frames` frames and returns the median step times in µs: the
+/// visibility step, and the lights' step.
+fn block(app: &mut App, frames: usize) -> (f64, f64) {
+    let (mut steps, mut lights): (Vec<f64>, Vec<f64>) = (0..frames)
         .map(|_| {
             app.update();
-            app.world().resource::<StepTimer>().last_us
+            let timer = app.world().resource::<StepTimer>();
+            (timer.last_us, timer.light_us)
         })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
+        .unzip();
+    steps.sort_by(f64::total_cmp);
+    lights.sort_by(f64::total_cmp);
+    (steps[frames / 2], lights[frames / 2])
 }
 
 /// What both Apps made of the last frame: the visible count and whether
 /// every `ViewVisibility` and camera list is the same.
 fn same_answers(bevy: &mut App, ours: &mut App) -> (usize, bool) {
+    // Per mover (by its slot, as storage orders may differ), then the
+    // others (cameras, lights) in storage order.
     let visible = |app: &mut App| -> Vec<bool> {
-        let mut query = app.world_mut().query::<&ViewVisibility>();
-        query.iter(app.world()).map(|v| v.get()).collect()
+        let mut query = app.world_mut().query::<(&ViewVisibility, Option<&Mover>)>();
+        let mut movers: Vec<(u32, bool)> = Vec::new();
+        let mut others = Vec::new();
+        for (v, mover) in query.iter(app.world()) {
+            match mover {
+                Some(m) => movers.push((m.slot, v.get())),
+                None => others.push(v.get()),
+            }
+        }
+        movers.sort_unstable_by_key(|m| m.0);
+        movers.into_iter().map(|m| m.1).chain(others).collect()
     };
     let lists = |app: &mut App| -> Vec<usize> {
         let mut query = app.world_mut().query::<&VisibleEntities>();
@@ -267,12 +376,37 @@ fn same_answers(bevy: &mut App, ours: &mut App) -> (usize, bool) {
     };
     let (a, b) = (visible(bevy), visible(ours));
     let count = a.iter().filter(|&&v| v).count();
-    (count, a == b && lists(bevy) == lists(ours))
+    (
+        count,
+        a == b && lists(bevy) == lists(ours) && light_lists(bevy) == light_lists(ours),
+    )
+}
+
+/// The lengths of every light's lists (cube faces, cascades).
+#[cfg(feature = "bevy_light")]
+fn light_lists(app: &mut App) -> Vec<usize> {
+    use bevy_camera::visibility::{CascadesVisibleEntities, CubemapVisibleEntities};
+    let world = app.world_mut();
+    let mut cubes = world.query::<&CubemapVisibleEntities>();
+    let mut out: Vec<usize> = cubes
+        .iter(world)
+        .flat_map(|c| c.iter().map(|f| f.entities.len()))
+        .collect();
+    let mut cascades = world.query::<&CascadesVisibleEntities>();
+    for lists in cascades.iter(world) {
+        out.extend(lists.entities.values().flatten().map(|l| l.entities.len()));
+    }
+    out
+}
+
+#[cfg(not(feature = "bevy_light"))]
+fn light_lists(_: &mut App) -> Vec<usize> {
+    Vec::new()
 }
 
 fn run(case: &Case, rounds: usize, frames: usize) {
-    let mut bevy = app(false);
-    let mut ours = app(true);
+    let mut bevy = app(false, case.lights);
+    let mut ours = app(true, case.lights);
     for app in [&mut bevy, &mut ours] {
         (case.spawn)(app.world_mut(), 0x5EED);
         app.insert_resource(Motion {
@@ -287,7 +421,8 @@ fn run(case: &Case, rounds: usize, frames: usize) {
     }
     let (visible, same) = same_answers(&mut bevy, &mut ours);
     assert!(same, "{}: the twin Apps disagree", case.name);
-    let (mut ratios, mut bevy_us, mut our_us) = (Vec::new(), Vec::new(), Vec::new());
+    // Per round: (Bevy, ours) for the visibility step and the lights' step.
+    let mut rows: Vec<[(f64, f64); 2]> = Vec::new();
     for round in 0..rounds {
         let (b, o) = if round % 2 == 0 {
             let b = block(&mut bevy, frames);
@@ -296,23 +431,32 @@ fn run(case: &Case, rounds: usize, frames: usize) {
             let o = block(&mut ours, frames);
             (block(&mut bevy, frames), o)
         };
-        ratios.push(b / o);
-        bevy_us.push(b);
-        our_us.push(o);
+        rows.push([(b.0, o.0), (b.1, o.1)]);
     }
     let (_, same) = same_answers(&mut bevy, &mut ours);
     assert!(same, "{}: the twin Apps disagree", case.name);
+    report(case.name, rows.iter().map(|r| r[0]), visible);
+    if case.lights {
+        let name = format!("{}: light visibility", case.name);
+        report(&name, rows.iter().map(|r| r[1]), visible);
+    }
+}
+
+/// One table row: median times and the median ratio of paired blocks.
+fn report(name: &str, pairs: impl Iterator<Item = (f64, f64)>, visible: usize) {
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
+    let (mut bevy_us, mut our_us): (Vec<f64>, Vec<f64>) = pairs.unzip();
+    let mut ratios: Vec<f64> = bevy_us.iter().zip(&our_us).map(|(b, o)| b / o).collect();
     let (lo, hi) = (
         ratios.iter().copied().fold(f64::INFINITY, f64::min),
         ratios.iter().copied().fold(0.0, f64::max),
     );
     println!(
         "| {} | {:.2} | {:.2} | {:.2} ({:.2}–{:.2}) | {} |",
-        case.name,
+        name,
         median(&mut bevy_us) / 1e3,
         median(&mut our_us) / 1e3,
         median(&mut ratios),
@@ -325,26 +469,48 @@ fn run(case: &Case, rounds: usize, frames: usize) {
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let (rounds, frames) = if quick { (3, 5) } else { (9, 15) };
-    let cases = [
+    let mut cases = vec![
         Case {
             name: "town 100,000, 10 % moving, 1 camera",
             spawn: |w, s| town(w, s, 1),
+            lights: false,
             period: 10,
             turn: std::f32::consts::TAU / 60.0,
         },
         Case {
             name: "town 100,000, 10 % moving, 4 cameras",
             spawn: |w, s| town(w, s, 4),
+            lights: false,
             period: 10,
             turn: std::f32::consts::TAU / 60.0,
         },
         Case {
             name: "map 1,000,000, 1 % moving, 2 % in view",
             spawn: large_map,
+            lights: false,
             period: 100,
             turn: 0.0,
         },
     ];
+    #[cfg(feature = "bevy_light")]
+    cases.extend([
+        Case {
+            name: "town 100,000, 10 % moving, 16 point lights",
+            spawn: town_point_lights,
+            lights: true,
+            period: 10,
+            // The lights stay in view (a light no camera sees casts no
+            // shadow in Bevy either).
+            turn: 0.0,
+        },
+        Case {
+            name: "town 100,000, 10 % moving, sun with 4 cascades",
+            spawn: town_sun,
+            lights: true,
+            period: 10,
+            turn: std::f32::consts::TAU / 60.0,
+        },
+    ]);
     println!("| case | Bevy (ms) | bevy_rtree (ms) | speed-up, median (range) | visible |");
     println!("|---|---:|---:|---:|---:|");
     let filter: Vec<String> = std::env::args()
