@@ -77,23 +77,20 @@ fn stop_light_step(mut timer: ResMut<StepTimer>) {
 fn add_lights(app: &mut App) {
     use bevy_asset::AssetApp;
     use bevy_light::SimulationLightSystems;
-    app.add_plugins((
-        bevy_asset::AssetPlugin::default(),
-        bevy_light::LightPlugin,
-    ))
-    .init_asset::<bevy_image::Image>()
-    .add_systems(
-        PostUpdate,
-        (
-            start_light_step
-                .after(VisibilitySystems::CheckVisibility)
-                .after(SimulationLightSystems::UpdateLightFrusta)
-                .before(SimulationLightSystems::CheckLightVisibility),
-            stop_light_step
-                .after(SimulationLightSystems::CheckLightVisibility)
-                .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
-        ),
-    );
+    app.add_plugins((bevy_asset::AssetPlugin::default(), bevy_light::LightPlugin))
+        .init_asset::<bevy_image::Image>()
+        .add_systems(
+            PostUpdate,
+            (
+                start_light_step
+                    .after(VisibilitySystems::CheckVisibility)
+                    .after(SimulationLightSystems::UpdateLightFrusta)
+                    .before(SimulationLightSystems::CheckLightVisibility),
+                stop_light_step
+                    .after(SimulationLightSystems::CheckLightVisibility)
+                    .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+            ),
+        );
 }
 
 /// A mover: a fresh tenth (or hundredth) of them moves each frame.

@@ -1,6 +1,10 @@
 //! Every example scene, driven for a few frames, answers like brute force.
 #![cfg(feature = "plugin")]
 
+#[cfg(feature = "bevy_light")]
+#[path = "../examples/bevy_lights.rs"]
+#[allow(dead_code)]
+mod bevy_lights;
 #[cfg(feature = "bevy_camera")]
 #[path = "../examples/bevy_visibility.rs"]
 #[allow(dead_code)]
@@ -128,6 +132,67 @@ fn bevy_visibility_draws_what_bevy_would() {
     // Culled by the tree: the plugin's culling ran and visited its nodes.
     let d = *street.app.world().resource::<SpatialDiagnostics>();
     assert!(d.culling.runs == 1 && d.culling.nodes_visited > 0, "{d:?}");
+}
+
+/// The street with lamps and a moon: every lamp the camera sees lists, in
+/// its shadow maps, every house within its 15 m range and no house beyond
+/// the range plus the house's half diagonal; the hidden house, its
+/// chimney, the sign on another layer and the bush that casts no shadow
+/// are in no shadow map; the sky dome with `NoFrustumCulling` is in every
+/// one; the moon's cascades hold houses.
+#[cfg(feature = "bevy_light")]
+#[test]
+fn bevy_lights_shadow_what_bevy_would() {
+    use bevy_camera::primitives::Aabb;
+    use bevy_ecs::entity::Entity;
+    use bevy_transform::prelude::GlobalTransform;
+    use glam::Vec3;
+    let mut street = bevy_lights::build();
+    let mut lamps_checked = 0;
+    for _ in 0..20 {
+        street.app.update();
+        let world = street.app.world();
+        let world_box = |e: Entity| {
+            let aabb = world.get::<Aabb>(e).unwrap();
+            let at = world.get::<GlobalTransform>(e).unwrap().translation();
+            let (c, h) = (at + Vec3::from(aabb.center), Vec3::from(aabb.half_extents));
+            (c - h, c + h)
+        };
+        for &lamp in &street.lamps {
+            // Lights no camera sees keep last frame's lists, as in Bevy.
+            if !bevy_lights::drawn(&street, lamp) {
+                continue;
+            }
+            lamps_checked += 1;
+            let centre = world.get::<GlobalTransform>(lamp).unwrap().translation();
+            for &house in &street.houses {
+                let (min, max) = world_box(house);
+                let gap = (centre - centre.clamp(min, max)).length();
+                let half_diagonal = ((max - min) * 0.5).length();
+                let listed = bevy_lights::in_lamp_shadow(&street, lamp, house);
+                if gap <= 15.0 {
+                    assert!(listed, "a house {gap} m from a lamp casts its shadow");
+                }
+                if gap > 15.0 + half_diagonal {
+                    assert!(!listed, "a house {gap} m from a lamp casts none");
+                }
+            }
+            for never in [
+                street.hidden_house,
+                street.chimney,
+                street.sign_on_layer_one,
+                street.bush,
+            ] {
+                assert!(!bevy_lights::in_lamp_shadow(&street, lamp, never));
+            }
+            assert!(bevy_lights::in_lamp_shadow(&street, lamp, street.sky));
+        }
+        let moon = bevy_lights::in_moon_shadow(&street);
+        assert!(street.houses.iter().any(|h| moon.contains(h)));
+        assert!(moon.contains(&street.sky) && !moon.contains(&street.bush));
+        assert!(!moon.contains(&street.hidden_house) && !moon.contains(&street.chimney));
+    }
+    assert!(lamps_checked > 20, "{lamps_checked}");
 }
 
 /// The small game: every enemy either sees the player or is blocked by
