@@ -42,6 +42,7 @@ use glam::{EulerRot, Quat, Vec3, Vec3A};
 struct StepTimer {
     start: Option<Instant>,
     last_us: f64,
+    #[cfg_attr(not(feature = "bevy_light"), allow(dead_code))]
     light_start: Option<Instant>,
     light_us: f64,
 }
@@ -466,6 +467,7 @@ fn report(name: &str, pairs: impl Iterator<Item = (f64, f64)>, visible: usize) {
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let (rounds, frames) = if quick { (3, 5) } else { (9, 15) };
+    #[cfg_attr(not(feature = "bevy_light"), allow(unused_mut))]
     let mut cases = vec![
         Case {
             name: "town 100,000, 10 % moving, 1 camera",
