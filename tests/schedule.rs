@@ -57,6 +57,39 @@ fn with_bevy_s_cameras_no_system_pair_in_post_update_is_ambiguous() {
     app.update();
 }
 
+/// The same with Bevy's lights, whose shadow visibility the index serves
+/// too (feature `bevy_light`).
+#[cfg(feature = "bevy_light")]
+#[test]
+fn with_bevy_s_lights_no_system_pair_in_post_update_is_ambiguous() {
+    use bevy_asset::{AssetApp, AssetPlugin, Assets};
+    use bevy_camera::CameraPlugin;
+    use bevy_light::LightPlugin;
+    use bevy_mesh::Mesh;
+    use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
+    let mut app = App::new();
+    app.add_plugins((
+        TaskPoolPlugin::default(),
+        AssetPlugin::default(),
+        bevy_transform::TransformPlugin,
+        CameraPlugin,
+        LightPlugin,
+    ))
+    .insert_resource(Assets::<Mesh>::default())
+    .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
+    .init_asset::<bevy_image::Image>()
+    .add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+    app.edit_schedule(PostUpdate, |schedule| {
+        schedule.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..Default::default()
+        });
+    });
+    app.finish();
+    app.cleanup();
+    app.update();
+}
+
 #[derive(Component)]
 struct Unregistered;
 
