@@ -20,7 +20,9 @@ use bevy_ecs::prelude::*;
 use bevy_light::{DirectionalLight, LightPlugin, NotShadowCaster, PointLight, SpotLight};
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
-use bevy_rtree::plugin::{BevyVisibilityPlugin, Renderable, SpatialIndex, SpatialIndexPlugin};
+use bevy_rtree::plugin::{
+    BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, SpatialIndex, SpatialIndexPlugin,
+};
 use bevy_rtree::scene::SceneRng;
 use bevy_transform::prelude::*;
 use glam::{Quat, Vec3, Vec3A};
@@ -383,6 +385,11 @@ fn random_visibility(rng: &mut SceneRng) -> Visibility {
 fn lights_see_what_bevy_lights_see_every_frame() {
     for seed in 0..2 {
         let mut twins = Twins::new(seed);
+        // The second scene runs without the inside proof: every cascade
+        // candidate takes Bevy's test.
+        twins.apps[1].insert_resource(BevyVisibilitySettings {
+            prove_inside: seed == 0,
+        });
         for _ in 0..2_000 {
             twins.spawn_caster();
         }

@@ -18,7 +18,8 @@ use bevy_ecs::prelude::*;
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
 use bevy_rtree::plugin::{
-    BevyVisibilityPlugin, Renderable, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin,
+    BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, SpatialDiagnostics, SpatialIndex,
+    SpatialIndexPlugin,
 };
 use bevy_rtree::scene::SceneRng;
 use bevy_transform::prelude::*;
@@ -382,6 +383,29 @@ fn cameras_see_what_bevy_sees_every_frame() {
         let diagnostics = twins.ours.world().resource::<SpatialDiagnostics>();
         assert!(diagnostics.culling.runs > 0);
     }
+}
+
+/// With the inside proof off (`BevyVisibilitySettings`), every candidate
+/// takes Bevy's tests: the same answers.
+#[test]
+fn cameras_without_the_inside_proof_see_what_bevy_sees() {
+    let mut twins = Twins::new(5);
+    twins.ours.insert_resource(BevyVisibilitySettings {
+        prove_inside: false,
+    });
+    for _ in 0..2_000 {
+        twins.spawn_entity();
+    }
+    for kind in [0, 2, 4] {
+        twins.spawn_camera(kind);
+    }
+    let mut seen = 0;
+    for frame in 0..20 {
+        twins.update();
+        seen += twins.check(frame);
+        twins.mutate();
+    }
+    assert!(seen > 2_000, "the cameras see enough to compare: {seen}");
 }
 
 /// Entities spread over 4 km, cameras that each see a small part of them:

@@ -80,7 +80,8 @@ use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 pub use bevy_camera::FollowBevyFrustum;
 #[cfg(feature = "bevy_camera")]
 pub use bevy_visibility::{
-    BevyVisibilityPlugin, Renderable, RenderableHandle, RenderableSyncSystems,
+    BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, RenderableHandle,
+    RenderableSyncSystems,
 };
 pub use bounds::{NoSpatialIndex, SpatialBounds};
 pub use culling::{CullingCamera, VisibleEntityList};

@@ -14,7 +14,7 @@ use bevy_ecs::query::QueryData;
 use bevy_transform::prelude::GlobalTransform;
 use glam::Vec3;
 
-use super::Renderable;
+use super::{BevyVisibilitySettings, Renderable};
 use crate::geometry::{Frustum, HalfSpace};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
@@ -128,6 +128,7 @@ pub(super) fn check_visibility_from_index(
     outside_the_tree: Query<Entity, OutsideTheTree>,
     index: Res<SpatialIndex<Renderable>>,
     ranges: Option<Res<VisibleEntityRanges>>,
+    settings: Res<BevyVisibilitySettings>,
     mut scratch: Local<Scratch>,
     sink: Res<DiagnosticsSink>,
 ) {
@@ -163,6 +164,9 @@ pub(super) fn check_visibility_from_index(
                 &mut scratch.workspace,
                 &mut view.candidates,
             );
+            if !settings.prove_inside {
+                view.candidates.iter_mut().for_each(|c| c.1 = false);
+            }
         }
         views.push(view);
     }

@@ -24,8 +24,8 @@ use bevy_mesh::Mesh3d;
 use bevy_transform::prelude::GlobalTransform;
 use glam::{DVec3, Vec3, Vec3A};
 
-use super::Renderable;
 use super::cameras::{UNTESTED_BY_CASCADES, candidates};
+use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
 
@@ -126,6 +126,7 @@ pub(super) fn check_light_visibility_from_index(
     view_transforms: Query<&GlobalTransform, With<Camera>>,
     index: Res<SpatialIndex<Renderable>>,
     ranges: Option<Res<VisibleEntityRanges>>,
+    settings: Res<BevyVisibilitySettings>,
     mut scratch: Local<LightScratch>,
 ) {
     let ranges = ranges.as_deref();
@@ -222,7 +223,7 @@ pub(super) fn check_light_visibility_from_index(
                 cascade.clear();
                 for &(entity, proven) in &scratch.candidates {
                     if let Ok(mut item) = casters.get_mut(entity) {
-                        let shape = Shape::Cascade(frustum, proven);
+                        let shape = Shape::Cascade(frustum, proven && settings.prove_inside);
                         decide(&mut item, &shape, &mask, Some(*view), ranges, cascade);
                     }
                 }

@@ -94,6 +94,32 @@ pub struct Renderable;
 #[derive(Clone, Copy, Debug, Default)]
 pub struct BevyVisibilityPlugin;
 
+/// How [`BevyVisibilityPlugin`] decides the tree's candidates; the plugin
+/// inserts the default, and a game may replace it at any time.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::plugin::{BevyVisibilityPlugin, BevyVisibilitySettings, SpatialIndexPlugin};
+///
+/// let mut app = App::new();
+/// app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
+///     .insert_resource(BevyVisibilitySettings { prove_inside: false });
+/// ```
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BevyVisibilitySettings {
+    /// Candidates whose world box the tree proves inside every plane Bevy
+    /// tests (by a margin past both tests' rounding) skip Bevy's frustum
+    /// tests. On by default. Off, every candidate takes Bevy's tests: the
+    /// same answers, more work (the performance notes price it).
+    pub prove_inside: bool,
+}
+
+impl Default for BevyVisibilitySettings {
+    fn default() -> Self {
+        BevyVisibilitySettings { prove_inside: true }
+    }
+}
+
 /// The plugin's system set in `PostUpdate`: the renderables' index follows
 /// their transforms and boxes; it runs after transform propagation and
 /// Bevy's bounds, before `VisibilitySystems::CheckVisibility`.
@@ -114,6 +140,7 @@ impl Plugin for BevyVisibilityPlugin {
         let _ = app.try_register_required_components::<BevyAabb, RenderableHandle>();
         app.insert_resource(SpatialIndex::<Renderable>::new(config.tree))
             .init_resource::<sync::Resync>()
+            .init_resource::<BevyVisibilitySettings>()
             .configure_sets(
                 PostUpdate,
                 RenderableSyncSystems
