@@ -12,7 +12,9 @@
 //!
 //! `cargo bench --bench bevy_visibility --features bevy_light`
 //! (add `multi_threaded` for Bevy's parallel executor; `-- --quick` for a
-//! short run; words after `--` pick cases by name).
+//! short run; words after `--` pick cases by name; `--no-proof` sends every
+//! candidate to Bevy's tests; `--world-box` also prints what the tree's
+//! candidates alone would list, and the time of that cull).
 
 use std::any::TypeId;
 use std::time::Instant;
@@ -402,9 +404,24 @@ fn light_lists(_: &mut App) -> Vec<usize> {
     Vec::new()
 }
 
-fn run(case: &Case, rounds: usize, frames: usize) {
+/// What to measure beside the default run.
+#[derive(Clone, Copy)]
+struct Options {
+    /// `--no-proof`: every candidate takes Bevy's tests.
+    no_proof: bool,
+    /// `--world-box`: also the tree's candidates alone, without Bevy's
+    /// tests (what the world box costs in accuracy, and its time).
+    world_box: bool,
+}
+
+fn run(case: &Case, rounds: usize, frames: usize, options: Options) {
     let mut bevy = app(false, case.lights);
     let mut ours = app(true, case.lights);
+    if options.no_proof {
+        ours.insert_resource(bevy_rtree::plugin::BevyVisibilitySettings {
+            prove_inside: false,
+        });
+    }
     for app in [&mut bevy, &mut ours] {
         (case.spawn)(app.world_mut(), 0x5EED);
         app.insert_resource(Motion {
@@ -433,11 +450,54 @@ fn run(case: &Case, rounds: usize, frames: usize) {
     }
     let (_, same) = same_answers(&mut bevy, &mut ours);
     assert!(same, "{}: the twin Apps disagree", case.name);
+    if options.world_box {
+        world_box_alone(case.name, &mut ours);
+    }
     report(case.name, rows.iter().map(|r| r[0]), visible);
     if case.lights {
         let name = format!("{}: light visibility", case.name);
         report(&name, rows.iter().map(|r| r[1]), visible);
     }
+}
+
+/// The tree's candidates for each camera without Bevy's tests (the world
+/// boxes through Bevy's planes but the far one, conservative): how many
+/// more than Bevy lists, and the median time of the cull.
+fn world_box_alone(name: &str, ours: &mut App) {
+    use bevy_camera::primitives::Frustum as BevyFrustum;
+    use bevy_rtree::plugin::{Renderable, SpatialIndex};
+    use bevy_rtree::{CullMode, Frustum, HalfSpace, QueryWorkspace};
+    let world = ours.world_mut();
+    let mut cameras = world.query::<(&BevyFrustum, &GlobalTransform, &VisibleEntities)>();
+    let views: Vec<(Frustum, usize)> = cameras
+        .iter(world)
+        .map(|(frustum, transform, listed)| {
+            let whole = Frustum::from_bevy(frustum, transform.translation()).unwrap();
+            let mut planes = *whole.planes();
+            planes[5] = HalfSpace::INACTIVE;
+            let listed = listed.get(TypeId::of::<Mesh3d>()).len();
+            (Frustum::new(whole.eye(), planes).unwrap(), listed)
+        })
+        .collect();
+    let tree = world.resource::<SpatialIndex<Renderable>>().tree();
+    let frustums: Vec<Frustum> = views.iter().map(|v| v.0.clone()).collect();
+    let listed: usize = views.iter().map(|v| v.1).sum();
+    let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
+    let mut times = Vec::new();
+    for _ in 0..15 {
+        out.iter_mut().for_each(Vec::clear);
+        let start = Instant::now();
+        tree.visible_into(&frustums, CullMode::Conservative, &mut ws, &mut out);
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    let candidates: usize = out.iter().map(Vec::len).sum();
+    times.sort_by(f64::total_cmp);
+    println!(
+        "{name}: world boxes alone list {candidates} for Bevy's {listed} ({:+.1} %), \
+         the tree's cull {:.3} ms",
+        (candidates as f64 / listed.max(1) as f64 - 1.0) * 100.0,
+        times[times.len() / 2]
+    );
 }
 
 /// One table row: median times and the median ratio of paired blocks.
@@ -516,9 +576,13 @@ fn main() {
         .skip(1)
         .filter(|a| !a.starts_with("--"))
         .collect();
+    let options = Options {
+        no_proof: std::env::args().any(|a| a == "--no-proof"),
+        world_box: std::env::args().any(|a| a == "--world-box"),
+    };
     for case in &cases {
         if filter.iter().all(|f| case.name.contains(f.as_str())) {
-            run(case, rounds, frames);
+            run(case, rounds, frames, options);
         }
     }
 }
