@@ -480,7 +480,7 @@ fn world_box_alone(name: &str, ours: &mut App) {
         })
         .collect();
     let tree = world.resource::<SpatialIndex<Renderable>>().tree();
-    let frustums: Vec<Frustum> = views.iter().map(|v| v.0.clone()).collect();
+    let frustums: Vec<Frustum> = views.iter().map(|v| v.0).collect();
     let listed: usize = views.iter().map(|v| v.1).sum();
     let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
     let mut times = Vec::new();
