@@ -6,26 +6,29 @@
 //! lists (cube faces, spot, cascades per view) must be the same.
 #![cfg(feature = "bevy_light")]
 
+#[path = "common/bevy_random.rs"]
+mod bevy_random;
+
 use std::collections::HashMap;
 
 use bevy_app::prelude::*;
 use bevy_asset::{AssetApp, AssetPlugin, Assets};
-use bevy_camera::primitives::Aabb;
 use bevy_camera::visibility::{
     CascadesVisibleEntities, CubemapVisibleEntities, NoCpuCulling, NoFrustumCulling, RenderLayers,
-    ViewVisibility, Visibility, VisibilityRange, VisibleMeshEntities,
+    ViewVisibility, VisibilityRange, VisibleMeshEntities,
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin};
 use bevy_ecs::prelude::*;
 use bevy_light::{DirectionalLight, LightPlugin, NotShadowCaster, PointLight, SpotLight};
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
+use bevy_random::{random_aabb, random_transform, random_visibility};
 use bevy_rtree::plugin::{
     BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, SpatialIndex, SpatialIndexPlugin,
 };
 use bevy_rtree::scene::SceneRng;
 use bevy_transform::prelude::*;
-use glam::{Quat, Vec3, Vec3A};
+use glam::{Quat, Vec3};
 
 /// A headless App with Bevy's transforms, cameras and lights, and with the
 /// index serving visibility if `ours`.
@@ -91,7 +94,7 @@ impl Twins {
         let pair = self.both(|world, rng, side| {
             let mut entity = world.spawn((
                 Mesh3d::default(),
-                random_transform(rng),
+                random_transform(rng, 60.0, (-2.0, 12.0)),
                 random_visibility(rng),
             ));
             // One in twelve has no box (Bevy's lights see it everywhere).
@@ -203,7 +206,7 @@ impl Twins {
                         }
                     }
                     9..=10 => {
-                        entity.insert(random_transform(rng));
+                        entity.insert(random_transform(rng, 60.0, (-2.0, 12.0)));
                     }
                     11 => {
                         entity.insert(random_visibility(rng));
@@ -322,59 +325,6 @@ impl Twins {
     fn update(&mut self) {
         self.apps.iter_mut().for_each(App::update);
     }
-}
-
-fn random_transform(rng: &mut SceneRng) -> Transform {
-    let at = Vec3::new(
-        rng.range(-60.0, 60.0),
-        rng.range(-2.0, 12.0),
-        rng.range(-60.0, 60.0),
-    );
-    let turn = Quat::from_euler(
-        glam::EulerRot::YXZ,
-        rng.range(0.0, 6.3),
-        rng.range(-1.0, 1.0),
-        0.0,
-    );
-    let scale = if rng.below(4) == 0 {
-        Vec3::new(
-            rng.range(0.2, 3.0),
-            rng.range(0.2, 3.0),
-            rng.range(0.2, 3.0),
-        )
-    } else {
-        Vec3::ONE
-    };
-    Transform {
-        translation: at,
-        rotation: turn,
-        scale,
-    }
-}
-
-fn random_aabb(rng: &mut SceneRng) -> Aabb {
-    Aabb {
-        center: Vec3A::new(
-            rng.range(-1.0, 1.0),
-            rng.range(-1.0, 1.0),
-            rng.range(-1.0, 1.0),
-        ),
-        half_extents: Vec3A::new(
-            rng.range(0.0, 3.0),
-            rng.range(0.0, 3.0),
-            rng.range(0.0, 3.0),
-        ),
-    }
-}
-
-fn random_visibility(rng: &mut SceneRng) -> Visibility {
-    [
-        Visibility::Inherited,
-        Visibility::Inherited,
-        Visibility::Inherited,
-        Visibility::Hidden,
-        Visibility::Visible,
-    ][rng.below(5)]
 }
 
 /// Random scenes of two thousand casters, point, spot and directional

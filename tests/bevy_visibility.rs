@@ -4,19 +4,23 @@
 //! `ViewVisibility` and every camera's `VisibleEntities` must be the same.
 #![cfg(feature = "bevy_camera")]
 
+#[path = "common/bevy_random.rs"]
+mod bevy_random;
+
 use std::any::TypeId;
 
 use bevy_app::prelude::*;
 use bevy_asset::Assets;
 use bevy_camera::primitives::{Aabb, Sphere};
 use bevy_camera::visibility::{
-    NoCpuCulling, NoFrustumCulling, RenderLayers, ViewVisibility, Visibility, VisibilityClass,
-    VisibilityRange, VisibleEntities,
+    NoCpuCulling, NoFrustumCulling, RenderLayers, ViewVisibility, VisibilityClass, VisibilityRange,
+    VisibleEntities,
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin, OrthographicProjection, Projection};
 use bevy_ecs::prelude::*;
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
+use bevy_random::{random_aabb, random_transform, random_visibility};
 use bevy_rtree::plugin::{
     BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, SpatialDiagnostics, SpatialIndex,
     SpatialIndexPlugin,
@@ -75,7 +79,10 @@ impl Twins {
             .then(|| self.entities[self.rng.below(self.entities.len())]);
         let spread = self.spread;
         let pair = self.both(|world, rng, side| {
-            let mut entity = world.spawn((random_transform(rng, spread), random_visibility(rng)));
+            let mut entity = world.spawn((
+                random_transform(rng, spread, (-5.0, 30.0)),
+                random_visibility(rng),
+            ));
             match rng.below(10) {
                 0 => {
                     // No box: Bevy does not cull it.
@@ -179,7 +186,7 @@ impl Twins {
                         }
                     }
                     10..=11 => {
-                        entity.insert(random_transform(rng, spread));
+                        entity.insert(random_transform(rng, spread, (-5.0, 30.0)));
                     }
                     12 => {
                         entity.insert(random_visibility(rng));
@@ -297,61 +304,6 @@ impl Twins {
         self.bevy.update();
         self.ours.update();
     }
-}
-
-fn random_transform(rng: &mut SceneRng, spread: f32) -> Transform {
-    let at = Vec3::new(
-        rng.range(-spread, spread),
-        rng.range(-5.0, 30.0),
-        rng.range(-spread, spread),
-    );
-    let turn = Quat::from_euler(
-        glam::EulerRot::YXZ,
-        rng.range(0.0, 6.3),
-        rng.range(-1.0, 1.0),
-        0.0,
-    );
-    let scale = if rng.below(4) == 0 {
-        Vec3::new(
-            rng.range(0.2, 3.0),
-            rng.range(0.2, 3.0),
-            rng.range(0.2, 3.0),
-        )
-    } else {
-        Vec3::ONE
-    };
-    Transform {
-        translation: at,
-        rotation: turn,
-        scale,
-    }
-}
-
-fn random_aabb(rng: &mut SceneRng) -> Aabb {
-    let center = Vec3A::new(
-        rng.range(-1.0, 1.0),
-        rng.range(-1.0, 1.0),
-        rng.range(-1.0, 1.0),
-    );
-    let half = Vec3A::new(
-        rng.range(0.0, 3.0),
-        rng.range(0.0, 3.0),
-        rng.range(0.0, 3.0),
-    );
-    Aabb {
-        center,
-        half_extents: half,
-    }
-}
-
-fn random_visibility(rng: &mut SceneRng) -> Visibility {
-    [
-        Visibility::Inherited,
-        Visibility::Inherited,
-        Visibility::Inherited,
-        Visibility::Hidden,
-        Visibility::Visible,
-    ][rng.below(5)]
 }
 
 /// Random scenes of a few thousand entities, five kinds of camera and
@@ -516,7 +468,7 @@ fn entities_spawned_before_the_plugin_are_served_too() {
                 .spawn((
                     Mesh3d::default(),
                     random_aabb(&mut rng),
-                    random_transform(&mut rng, 50.0),
+                    random_transform(&mut rng, 50.0, (-5.0, 30.0)),
                 ))
                 .id();
             spawned.push(entity);
