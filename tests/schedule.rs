@@ -123,3 +123,56 @@ fn a_camera_of_an_unregistered_layer_is_a_clear_error() {
     app.world_mut()
         .spawn(CullingCamera::<Unregistered>::for_layer(view));
 }
+
+/// What a system in `Update` counted through `SpatialQuery`.
+#[derive(Resource, Default)]
+struct SeenInUpdate(Vec<usize>);
+
+/// The first frame's `Update` used to query an empty index: the boxes of
+/// entities spawned at startup were only indexed in that frame's
+/// `PostUpdate`. Now they are indexed in `PostStartup` (after Bevy's
+/// startup transform propagation, with the feature `bevy`).
+#[test]
+fn a_query_in_the_first_update_sees_the_entities_spawned_at_startup() {
+    let mut app = App::new();
+    #[cfg(feature = "bevy")]
+    app.add_plugins(bevy_transform::TransformPlugin);
+    app.add_plugins(SpatialIndexPlugin::default())
+        .add_spatial_layer::<Enemy>()
+        .init_resource::<SeenInUpdate>()
+        .add_systems(Startup, |mut commands: Commands| {
+            let unit = Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap();
+            commands.spawn(SpatialBounds(unit));
+            commands.spawn((SpatialBounds(unit), Enemy));
+            #[cfg(feature = "bevy")]
+            commands.spawn((
+                LocalBounds(unit),
+                bevy_transform::prelude::Transform::from_xyz(0.5, 0.0, 0.0),
+            ));
+        })
+        .add_systems(
+            Update,
+            |mut all: SpatialQuery,
+             mut enemies: SpatialQuery<Enemy>,
+             mut seen: ResMut<SeenInUpdate>| {
+                let around = Aabb::new(Vec3::splat(-1.0), Vec3::splat(2.0)).unwrap();
+                let none = SpatialQueryFilter::default();
+                let mut found = Vec::new();
+                all.overlapping(&around, &none, &mut found);
+                seen.0.push(found.len());
+                found.clear();
+                enemies.overlapping(&around, &none, &mut found);
+                seen.0.push(found.len());
+            },
+        );
+    app.update();
+    let expected_all = if cfg!(feature = "bevy") { 3 } else { 2 };
+    assert_eq!(app.world().resource::<SeenInUpdate>().0, [expected_all, 1]);
+    // Later frames see them too, and nothing twice.
+    app.update();
+    assert_eq!(
+        app.world().resource::<SeenInUpdate>().0[2..],
+        [expected_all, 1]
+    );
+    app.world().resource::<SpatialIndex>().validate().unwrap();
+}

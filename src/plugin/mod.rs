@@ -122,7 +122,10 @@ pub struct SpatialIndexPlugin {
     pub tree: TreeSettings,
     /// The schedule the plugin's systems run in: `PostUpdate` by default, so
     /// that this frame's moves (and, with the `bevy` feature, transform
-    /// propagation) come first.
+    /// propagation) come first. A system in `Update` then queries the boxes
+    /// as the last frame ended, as it reads `GlobalTransform`; with
+    /// `PostUpdate`, the entities spawned at startup are also indexed in
+    /// `PostStartup`, so the first frame's queries see them.
     pub schedule: InternedScheduleLabel,
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
     /// repair in any one frame.
@@ -192,6 +195,14 @@ impl Plugin for SpatialIndexPlugin {
         )
         .add_systems(Last, diagnostics::publish_diagnostics)
         .add_observer(opt_back_in);
+        if self.schedule == PostUpdate.intern() {
+            // The boxes of entities spawned at startup are indexed before
+            // the first frame, so that the first frame's queries see them.
+            app.configure_sets(
+                PostStartup,
+                (SpatialIndexSystems::Bounds, SpatialIndexSystems::Sync).chain(),
+            );
+        }
         #[cfg(feature = "bevy")]
         transform::build(app, self.schedule);
         #[cfg(feature = "bevy_camera")]
@@ -241,20 +252,26 @@ impl SpatialAppExt for App {
         };
         self.insert_resource(index::SpatialIndex::<L>::new(config.tree));
         register_layer_queries::<L>(self, &config);
-        if index::is_main_layer::<L>() {
-            self.add_systems(
-                config.schedule,
-                index::sync_main
-                    .in_set(SpatialIndexSystems::Sync)
-                    .run_if(any_with_component::<SpatialBounds>),
-            );
-        } else {
-            self.add_systems(
-                config.schedule,
-                index::sync_layer::<L>
-                    .in_set(SpatialIndexSystems::Sync)
-                    .run_if(any_with_component::<L>),
-            );
+        let mut schedules = vec![config.schedule];
+        if config.schedule == PostUpdate.intern() {
+            schedules.push(PostStartup.intern());
+        }
+        for schedule in schedules {
+            if index::is_main_layer::<L>() {
+                self.add_systems(
+                    schedule,
+                    index::sync_main
+                        .in_set(SpatialIndexSystems::Sync)
+                        .run_if(any_with_component::<SpatialBounds>),
+                );
+            } else {
+                self.add_systems(
+                    schedule,
+                    index::sync_layer::<L>
+                        .in_set(SpatialIndexSystems::Sync)
+                        .run_if(any_with_component::<L>),
+                );
+            }
         }
         self.add_observer(
             |event: On<Remove<L>>,

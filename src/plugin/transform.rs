@@ -3,7 +3,7 @@
 //! propagation, only when its transform or local box changed.
 
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::InternedScheduleLabel;
+use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 use bevy_transform::TransformSystems;
 use bevy_transform::prelude::GlobalTransform;
 
@@ -23,16 +23,24 @@ use crate::geometry::Aabb;
 pub struct LocalBounds(pub Aabb);
 
 pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
-    app.configure_sets(
-        schedule,
-        SpatialIndexSystems::Bounds.after(TransformSystems::Propagate),
-    )
-    .add_systems(
-        schedule,
-        bounds_from_transforms
-            .in_set(SpatialIndexSystems::Bounds)
-            .run_if(any_with_component::<LocalBounds>),
-    );
+    let mut schedules = vec![schedule];
+    // With the plugin in `PostUpdate`, the entities spawned at startup get
+    // their world boxes after Bevy's startup propagation too.
+    if schedule == bevy_app::PostUpdate.intern() {
+        schedules.push(bevy_app::PostStartup.intern());
+    }
+    for schedule in schedules {
+        app.configure_sets(
+            schedule,
+            SpatialIndexSystems::Bounds.after(TransformSystems::Propagate),
+        )
+        .add_systems(
+            schedule,
+            bounds_from_transforms
+                .in_set(SpatialIndexSystems::Bounds)
+                .run_if(any_with_component::<LocalBounds>),
+        );
+    }
 }
 
 #[allow(clippy::type_complexity)]
