@@ -1,0 +1,442 @@
+//! Does the tree decay? Eight ways games move things, each for 2,000
+//! frames over the standard scene's 100,000 entities, maintained as the
+//! plugin maintains its trees (a batch of moves, inserts and removals per
+//! frame, then `optimize` with the plugin's default budget of 64). After
+//! the last frame, every query family is timed on the maintained tree and
+//! on a fresh bulk load of the same entries, alternating, and reported as
+//! the ratio maintained ÷ fresh (1.00 = as good as fresh); beside it, the
+//! maintenance time per frame (mean of the last 200 frames).
+//!
+//! `cargo bench --bench decay` (`-- --frames 500` for a shorter run; words
+//! after `--` pick patterns by name). Deterministic from the seed.
+
+use std::time::Instant;
+
+use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
+use bevy_rtree::{Aabb, CullMode, JoinMode, ProxyId, QueryWorkspace, RTree, RayMode, RayResults};
+use glam::Vec3;
+
+const SEED: u64 = 0x5EED_2024;
+/// The plugin's default repair budget per layer and frame.
+const OPTIMIZE_BUDGET: usize = 64;
+
+/// How the entities move.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pattern {
+    /// The standard scene: a fresh random 10 % step 0.1 m each frame.
+    Steps,
+    /// The steps, and 1 % teleport anywhere in the world each frame.
+    Teleports,
+    /// 1 % removed and inserted at new places each frame.
+    Respawn,
+    /// Everyone walks 0.5 m a frame towards one of four points for 300
+    /// frames, then away for 300 frames, and again.
+    Crowd,
+    /// 10 % swing back and forth 4 m along an axis, a period of 60 frames.
+    Oscillation,
+    /// 5 % drive straight at 0.5 m a frame (30 m/s at 60 Hz), wrapping
+    /// around the world.
+    Vehicles,
+    /// The steps, and 2,000 bullets inserted and 2,000 removed each frame
+    /// (each lives 8 frames, moving 1 m a frame).
+    Bullets,
+    /// The same 10 % move every frame; 90 % never do.
+    Asleep,
+}
+
+const PATTERNS: [Pattern; 8] = [
+    Pattern::Steps,
+    Pattern::Teleports,
+    Pattern::Respawn,
+    Pattern::Crowd,
+    Pattern::Oscillation,
+    Pattern::Vehicles,
+    Pattern::Bullets,
+    Pattern::Asleep,
+];
+
+/// The scene's entities, their motion and their trees: all of them, and
+/// the join's enemies and barrels in trees of their own.
+struct World {
+    centres: Vec<Vec3>,
+    halves: Vec<Vec3>,
+    velocity: Vec<Vec3>,
+    all: RTree<u32>,
+    ids: Vec<ProxyId>,
+    enemies: RTree<u32>,
+    barrels: RTree<u32>,
+    /// Handle in the enemies or barrels tree, for entities in the join.
+    join_ids: Vec<Option<ProxyId>>,
+    /// Live bullets: their handle, centre and velocity, and the frame they
+    /// expire.
+    bullets: Vec<(ProxyId, Vec3, Vec3, u32)>,
+    rng: SceneRng,
+    frame: u32,
+}
+
+impl World {
+    fn new(scene: &TownScene) -> World {
+        let boxes = scene.boxes();
+        let centres: Vec<Vec3> = boxes.iter().map(|b| (b.min + b.max) * 0.5).collect();
+        let halves: Vec<Vec3> = boxes.iter().map(|b| (b.max - b.min) * 0.5).collect();
+        let (all, ids) = scene.bulk_loaded_tree();
+        let mut enemies = RTree::new();
+        let mut barrels = RTree::new();
+        let mut join_ids = vec![None; boxes.len()];
+        for i in TownScene::ENEMIES {
+            join_ids[i] = Some(enemies.insert(i as u32, boxes[i]).unwrap());
+        }
+        for i in TownScene::BARRELS {
+            join_ids[i] = Some(barrels.insert(i as u32, boxes[i]).unwrap());
+        }
+        let mut rng = SceneRng::new(SEED ^ 0xDECA7);
+        let velocity = (0..boxes.len())
+            .map(|_| Vec3::new(rng.range(-0.1, 0.1), 0.0, rng.range(-0.1, 0.1)))
+            .collect();
+        World {
+            centres,
+            halves,
+            velocity,
+            all,
+            ids,
+            enemies,
+            barrels,
+            join_ids,
+            bullets: Vec::new(),
+            rng,
+            frame: 0,
+        }
+    }
+
+    fn aabb(&self, i: usize) -> Aabb {
+        Aabb {
+            min: self.centres[i] - self.halves[i],
+            max: self.centres[i] + self.halves[i],
+        }
+    }
+
+    /// Moves entity `i` to `centre` in every tree it is in.
+    fn place(&mut self, i: usize, centre: Vec3, moves: &mut Vec<(ProxyId, Aabb)>) {
+        self.centres[i] = clamp_to_world(centre);
+        let aabb = self.aabb(i);
+        moves.push((self.ids[i], aabb));
+        if let Some(id) = self.join_ids[i] {
+            let tree = if TownScene::ENEMIES.contains(&i) {
+                &mut self.enemies
+            } else {
+                &mut self.barrels
+            };
+            tree.update(id, aabb).unwrap();
+        }
+    }
+
+    fn random_point(&mut self) -> Vec3 {
+        Vec3::new(
+            self.rng.range(0.0, WORLD_MAX.x),
+            self.rng.range(0.0, WORLD_MAX.y),
+            self.rng.range(0.0, WORLD_MAX.z),
+        )
+    }
+
+    /// One frame of `pattern`; returns the time the trees' maintenance took
+    /// (updates, inserts, removals and repair), in ms.
+    fn advance(&mut self, pattern: Pattern) -> f64 {
+        let n = self.centres.len();
+        let mut moves = Vec::new();
+        let start = Instant::now();
+        match pattern {
+            Pattern::Steps | Pattern::Teleports | Pattern::Bullets => {
+                for _ in 0..n / 10 {
+                    let i = self.rng.below(n);
+                    let to = self.centres[i] + self.velocity[i];
+                    self.place(i, to, &mut moves);
+                }
+                if pattern == Pattern::Teleports {
+                    for _ in 0..n / 100 {
+                        let i = self.rng.below(n);
+                        let to = self.random_point();
+                        self.place(i, to, &mut moves);
+                    }
+                }
+            }
+            Pattern::Respawn => {
+                for _ in 0..n / 100 {
+                    let i = self.rng.below(n);
+                    self.all.remove(self.ids[i]).unwrap();
+                    self.centres[i] = self.random_point();
+                    self.ids[i] = self.all.insert(i as u32, self.aabb(i)).unwrap();
+                }
+            }
+            Pattern::Crowd => {
+                let gathering = (self.frame / 300).is_multiple_of(2);
+                let points = [
+                    Vec3::new(500.0, 50.0, 500.0),
+                    Vec3::new(1500.0, 50.0, 500.0),
+                    Vec3::new(500.0, 50.0, 1500.0),
+                    Vec3::new(1500.0, 50.0, 1500.0),
+                ];
+                for i in 0..n {
+                    let towards = points[i % 4] - self.centres[i];
+                    let dir = towards.normalize_or_zero() * if gathering { 0.5 } else { -0.5 };
+                    let step = if towards.length() < 1.0 && gathering {
+                        Vec3::ZERO
+                    } else {
+                        dir
+                    };
+                    let to = self.centres[i] + step;
+                    self.place(i, to, &mut moves);
+                }
+            }
+            Pattern::Oscillation => {
+                let phase = (self.frame % 60) as f32 / 60.0 * std::f32::consts::TAU;
+                // Velocity of a 4 m swing: d/dt of 2 sin(phase).
+                let speed = 2.0 * std::f32::consts::TAU / 60.0 * phase.cos();
+                for i in (0..n).step_by(10) {
+                    let axis = self.velocity[i].normalize_or_zero();
+                    let to = self.centres[i] + axis * speed;
+                    self.place(i, to, &mut moves);
+                }
+            }
+            Pattern::Vehicles => {
+                for i in (0..n).step_by(20) {
+                    let dir = self.velocity[i].normalize_or_zero();
+                    let mut to = self.centres[i] + dir * 0.5;
+                    // Wrap around instead of piling up at the edge.
+                    to.x = to.x.rem_euclid(WORLD_MAX.x);
+                    to.z = to.z.rem_euclid(WORLD_MAX.z);
+                    self.place(i, to, &mut moves);
+                }
+            }
+            Pattern::Asleep => {
+                for i in (0..n).step_by(10) {
+                    let to = self.centres[i] + self.velocity[i] * 2.0;
+                    self.place(i, to, &mut moves);
+                }
+            }
+        }
+        // The same entity may move twice in a frame: the later box wins.
+        self.all.update_batch(&moves).unwrap();
+        if pattern == Pattern::Bullets {
+            self.fire_bullets();
+        }
+        self.all.optimize(OPTIMIZE_BUDGET);
+        self.enemies.optimize(OPTIMIZE_BUDGET);
+        self.barrels.optimize(OPTIMIZE_BUDGET);
+        self.frame += 1;
+        start.elapsed().as_secs_f64() * 1e3
+    }
+
+    /// 2,000 new bullets, the expired ones removed, the rest moved on.
+    fn fire_bullets(&mut self) {
+        let frame = self.frame;
+        let all = &mut self.all;
+        let mut kept = Vec::with_capacity(self.bullets.len() + 2_000);
+        for (id, centre, velocity, expires) in self.bullets.drain(..) {
+            if expires <= frame {
+                all.remove(id).unwrap();
+                continue;
+            }
+            let to = clamp_to_world(centre + velocity);
+            all.update(id, bullet_box(to)).unwrap();
+            kept.push((id, to, velocity, expires));
+        }
+        for b in 0..2_000u32 {
+            let from = Vec3::new(
+                self.rng.range(0.0, WORLD_MAX.x),
+                self.rng.range(0.0, 10.0),
+                self.rng.range(0.0, WORLD_MAX.z),
+            );
+            let velocity = self.rng.direction();
+            let key = u32::MAX - (frame % 8) * 2_000 - b;
+            let id = all.insert(key, bullet_box(from)).unwrap();
+            kept.push((id, from, velocity, frame + 8));
+        }
+        self.bullets = kept;
+    }
+
+    /// Fresh bulk loads of every tree's current entries.
+    fn fresh(&self) -> [RTree<u32>; 3] {
+        [&self.all, &self.enemies, &self.barrels].map(|tree| {
+            let mut fresh = RTree::new();
+            fresh
+                .insert_bulk(tree.iter().map(|(_, key, aabb)| (key, aabb)))
+                .unwrap();
+            fresh
+        })
+    }
+}
+
+fn bullet_box(centre: Vec3) -> Aabb {
+    Aabb {
+        min: centre - Vec3::splat(0.05),
+        max: centre + Vec3::splat(0.05),
+    }
+}
+
+fn clamp_to_world(p: Vec3) -> Vec3 {
+    p.clamp(Vec3::ZERO, WORLD_MAX)
+}
+
+/// The query families, on one set of trees (all, enemies, barrels).
+struct Queries {
+    frustum: bevy_rtree::Frustum,
+    incoherent: Vec<bevy_rtree::Ray>,
+    coherent: Vec<bevy_rtree::Ray>,
+    boxes: Vec<Aabb>,
+}
+
+const FAMILIES: [&str; 6] = [
+    "cull",
+    "1,000 incoherent rays",
+    "1,000 coherent rays",
+    "cross join",
+    "self join",
+    "1,000 box queries",
+];
+
+impl Queries {
+    /// Runs family `f` on `trees` and returns (ms, answer count).
+    fn run(&self, f: usize, trees: &[RTree<u32>; 3], ws: &mut QueryWorkspace) -> (f64, usize) {
+        let start = Instant::now();
+        let count = match f {
+            0 => {
+                let mut out = Vec::new();
+                trees[0].visible_into(
+                    std::slice::from_ref(&self.frustum),
+                    CullMode::Conservative,
+                    ws,
+                    &mut out,
+                );
+                out[0].len()
+            }
+            1 | 2 => {
+                let rays = if f == 1 {
+                    &self.incoherent
+                } else {
+                    &self.coherent
+                };
+                let mut out = RayResults::default();
+                trees[0].cast_rays(rays, RayMode::First, ws, &mut out);
+                (0..rays.len())
+                    .filter(|&i| out.first(i).ok().flatten().is_some())
+                    .count()
+            }
+            3 => {
+                let mut out = Vec::new();
+                trees[1]
+                    .cross_join_into(
+                        &trees[2],
+                        TownScene::JOIN_DISTANCE,
+                        JoinMode::Euclidean,
+                        ws,
+                        &mut out,
+                    )
+                    .unwrap();
+                out.len()
+            }
+            4 => {
+                let mut out = Vec::new();
+                trees[0]
+                    .self_join_into(0.0, JoinMode::Euclidean, ws, &mut out)
+                    .unwrap();
+                out.len()
+            }
+            _ => {
+                let mut out = Vec::new();
+                for b in &self.boxes {
+                    trees[0].overlapping_into(b, ws, &mut out);
+                }
+                out.len()
+            }
+        };
+        (start.elapsed().as_secs_f64() * 1e3, count)
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn run(pattern: Pattern, frames: u32) {
+    let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
+    let mut world = World::new(&scene);
+    let mut maintenance = Vec::new();
+    for _ in 0..frames {
+        maintenance.push(world.advance(pattern));
+    }
+    let tail = &maintenance[maintenance.len().saturating_sub(200)..];
+    let per_frame = tail.iter().sum::<f64>() / tail.len() as f64;
+    world.all.validate().unwrap();
+    let fresh = world.fresh();
+    let maintained = [world.all, world.enemies, world.barrels];
+    let mut rng = SceneRng::new(SEED ^ 0xB0C5);
+    let queries = Queries {
+        frustum: scene.frustum(),
+        incoherent: scene.incoherent_rays(1_000),
+        coherent: scene.coherent_rays_from(scene.clear_eye()),
+        boxes: (0..1_000)
+            .map(|_| {
+                let c = Vec3::new(
+                    rng.range(0.0, WORLD_MAX.x),
+                    rng.range(0.0, WORLD_MAX.y),
+                    rng.range(0.0, WORLD_MAX.z),
+                );
+                Aabb {
+                    min: c - Vec3::splat(5.0),
+                    max: c + Vec3::splat(5.0),
+                }
+            })
+            .collect(),
+    };
+    let mut ws = QueryWorkspace::default();
+    let mut cells = Vec::new();
+    for (f, family) in FAMILIES.iter().enumerate() {
+        let (mut kept, mut new) = (Vec::new(), Vec::new());
+        for rep in 0..7 {
+            let order: [&[RTree<u32>; 3]; 2] = if rep % 2 == 0 {
+                [&maintained, &fresh]
+            } else {
+                [&fresh, &maintained]
+            };
+            let a = queries.run(f, order[0], &mut ws);
+            let b = queries.run(f, order[1], &mut ws);
+            let (m, n) = if rep % 2 == 0 { (a, b) } else { (b, a) };
+            assert_eq!(m.1, n.1, "{pattern:?}: {family} answers differ");
+            kept.push(m.0);
+            new.push(n.0);
+        }
+        cells.push(median(&mut kept) / median(&mut new));
+    }
+    let cells: Vec<String> = cells.iter().map(|r| format!("{r:.2}")).collect();
+    println!("| {pattern:?} | {} | {per_frame:.3} |", cells.join(" | "));
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let frames = args
+        .iter()
+        .position(|a| a == "--frames")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2_000u32);
+    let picked: Vec<&String> = args
+        .iter()
+        .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
+        .collect();
+    println!(
+        "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 alternating runs"
+    );
+    println!();
+    println!(
+        "| pattern | {} | maintenance ms/frame |",
+        FAMILIES.join(" | ")
+    );
+    println!("|---|{}---:|", "---:|".repeat(FAMILIES.len()));
+    for pattern in PATTERNS {
+        let name = format!("{pattern:?}").to_lowercase();
+        if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {
+            run(pattern, frames);
+        }
+    }
+}
