@@ -31,6 +31,8 @@ pub const MAX_COORD: f32 = 1e15;
 /// assert!(unit.intersects(&touching)); // closed boxes: a shared face counts
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aabb {
     /// The corner with the smallest coordinates.

@@ -15,6 +15,8 @@ use std::fmt;
 /// let inverted = Aabb::new(Vec3::ONE, Vec3::ZERO);
 /// assert_eq!(inverted, Err(SpatialError::InvalidBox));
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[non_exhaustive]
 pub enum SpatialError {

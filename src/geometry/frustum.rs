@@ -9,6 +9,8 @@ use super::SpatialError;
 /// A point `p` is inside when `dot(normal, p - eye) + offset > 0`. The pattern
 /// `normal = 0, offset = +inf` is *inactive*: it never culls (an infinite far
 /// plane). Any other plane needs a finite, non-zero normal and a finite offset.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HalfSpace {
     /// Points towards the inside. Need not be unit length.
@@ -96,6 +98,10 @@ impl HalfSpace {
 /// assert!(!frustum.intersects_conservative(&behind));
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+// Opaque: its planes are checked and scaled on construction, which an
+// inspector editing fields one by one would bypass.
+#[cfg_attr(feature = "reflect", reflect(opaque, Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frustum {
     eye: Vec3,

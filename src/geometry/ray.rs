@@ -24,6 +24,8 @@ use super::{Aabb, SpatialError};
 /// assert!(Ray::new(Vec3::ZERO, Vec3::ZERO, 1.0).is_err());
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
     /// Where the segment starts (`t = 0`).

@@ -5,6 +5,8 @@
 use bevy_camera::primitives::Frustum as BevyFrustum;
 use bevy_camera::visibility::VisibilitySystems;
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use bevy_ecs::schedule::InternedScheduleLabel;
 use bevy_transform::prelude::GlobalTransform;
 use glam::Vec3;
@@ -20,6 +22,8 @@ use crate::query::CullMode;
 ///
 /// A frustum that cannot be converted (not finite) keeps the previous one
 /// and logs a warning once per camera.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FollowBevyFrustum {
     /// The cull mode of the [`CullingCamera`].
@@ -27,6 +31,7 @@ pub struct FollowBevyFrustum {
 }
 
 pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
+    app.register_type::<FollowBevyFrustum>();
     app.configure_sets(
         schedule,
         SpatialIndexSystems::Bounds.after(VisibilitySystems::UpdateFrusta),

@@ -1,6 +1,8 @@
 //! The components that put an entity into the index.
 
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 
 use crate::geometry::Aabb;
 
@@ -30,6 +32,8 @@ use crate::geometry::Aabb;
 /// assert_eq!(world.get::<SpatialBounds>(entity), Some(&bounds));
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct SpatialBounds(pub Aabb);
 
@@ -51,5 +55,7 @@ impl Default for SpatialBounds {
 /// let hidden = world.spawn((SpatialBounds::default(), NoSpatialIndex)).id();
 /// assert!(world.get::<NoSpatialIndex>(hidden).is_some());
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct NoSpatialIndex;

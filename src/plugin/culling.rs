@@ -2,6 +2,8 @@
 //! sorted list of the entities it sees, all cameras in one traversal.
 
 use super::frame_queries::{self, FrameWorkspace};
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -39,6 +41,8 @@ use crate::query::CullMode;
 /// # let _ = behind;
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]
 #[require(VisibleEntityList<L>)]
 #[component(on_add = super::layer_must_be_registered::<L>)]
@@ -47,6 +51,7 @@ pub struct CullingCamera<L: Component = SpatialBounds> {
     pub frustum: Frustum,
     /// Conservative (Bevy's convention, the default) or exact.
     pub mode: CullMode,
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -101,9 +106,12 @@ impl<L: Component> CullingCamera<L> {
 /// list's allocation is reused from frame to frame. When the entity loses
 /// its `CullingCamera<L>`, the list goes too, so that it never names
 /// entities that no longer exist.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]
 pub struct VisibleEntityList<L: Component = SpatialBounds> {
     entities: Vec<Entity>,
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
     _layer: PhantomData<fn() -> L>,
 }
 

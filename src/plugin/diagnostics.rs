@@ -1,6 +1,8 @@
 //! What the plugin did this frame, so that cost (and its absence) can be
 //! seen and tested without a profiler.
 
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectResource;
 use std::sync::Mutex;
 
 use bevy_ecs::prelude::*;
@@ -10,6 +12,8 @@ use super::index::SyncCount;
 use crate::query::QueryWorkspace;
 
 /// Work done by one query family in one frame.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct QueryWork {
     /// How many times the family's system ran (once per layer that has work).
@@ -44,6 +48,8 @@ impl QueryWork {
 }
 
 /// How the indexes followed the entities this frame, summed over layers.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SyncWork {
     /// Sync passes that ran (one per layer with indexed entities or changes).
@@ -61,6 +67,8 @@ pub struct SyncWork {
 }
 
 /// Repairs of degraded leaves this frame.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MaintenanceWork {
     /// Maintenance passes that ran (only where a layer had something to repair).
@@ -88,6 +96,8 @@ pub struct MaintenanceWork {
 /// assert_eq!(diagnostics.rays.runs, 0);
 /// assert_eq!(diagnostics.joins.runs, 0);
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource, Debug, PartialEq, Clone))]
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SpatialDiagnostics {
     /// Frames since the plugin was added.

@@ -203,6 +203,14 @@ impl Plugin for SpatialIndexPlugin {
                 (SpatialIndexSystems::Bounds, SpatialIndexSystems::Sync).chain(),
             );
         }
+        #[cfg(feature = "reflect")]
+        app.register_type::<SpatialBounds>()
+            .register_type::<NoSpatialIndex>()
+            .register_type::<CullingCamera>()
+            .register_type::<VisibleEntityList>()
+            .register_type::<RayCaster>()
+            .register_type::<RayCasterHits>()
+            .register_type::<SpatialDiagnostics>();
         #[cfg(feature = "bevy")]
         transform::build(app, self.schedule);
         #[cfg(feature = "bevy_camera")]

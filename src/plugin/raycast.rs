@@ -2,6 +2,8 @@
 //! batched into one traversal per ray mode, and each gets its hits.
 
 use super::frame_queries::{self, FrameWorkspace};
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -49,6 +51,8 @@ use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
 /// assert_eq!(hits.first().map(|h| (h.key, h.t)), Some((wall, 5.0)));
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]
 #[require(RayCasterHits<L>)]
 #[component(on_add = super::layer_must_be_registered::<L>)]
@@ -58,10 +62,13 @@ pub struct RayCaster<L: Component = SpatialBounds> {
     pub ray: Ray,
     /// First hit, all hits (optionally limited) or any hit.
     pub mode: RayMode,
-    /// Which entities the ray may hit.
+    /// Which entities the ray may hit (not reflected: it may hold a
+    /// closure).
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
     pub filter: SpatialQueryFilter,
     /// Whether the caster's own entity is left out (the default).
     pub ignore_self: bool,
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -138,6 +145,8 @@ impl<L: Component> RayCaster<L> {
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
 /// `RayCaster<L>`, the answer goes too, so that it never names entities
 /// that no longer exist.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]
 pub struct RayCasterHits<L: Component = SpatialBounds> {
     hits: Vec<RayHit<Entity>>,
@@ -145,6 +154,7 @@ pub struct RayCasterHits<L: Component = SpatialBounds> {
     error: Option<SpatialError>,
     /// The ray that was cast, in world space.
     ray: Option<Ray>,
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
     _layer: PhantomData<fn() -> L>,
 }
 

@@ -3,6 +3,8 @@
 //! propagation, only when its transform or local box changed.
 
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 use bevy_transform::TransformSystems;
 use bevy_transform::prelude::GlobalTransform;
@@ -18,11 +20,15 @@ use crate::geometry::Aabb;
 /// A transform that is not finite or that collapses an axis (zero scale)
 /// gives no world box: the entity leaves the index, is reported once and
 /// counted, until its transform is usable again.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 #[require(SpatialBounds, GlobalTransform)]
 pub struct LocalBounds(pub Aabb);
 
 pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
+    #[cfg(feature = "reflect")]
+    app.register_type::<LocalBounds>();
     let mut schedules = vec![schedule];
     // With the plugin in `PostUpdate`, the entities spawned at startup get
     // their world boxes after Bevy's startup propagation too.

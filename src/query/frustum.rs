@@ -17,6 +17,8 @@ use crate::tree::RTree;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 
 /// How a frustum decides that a box is visible ([contract S7](crate::contract)).
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum CullMode {
     /// Visible iff the box's furthest corner along every plane normal is

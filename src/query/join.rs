@@ -17,6 +17,8 @@ use crate::tree::node::Node;
 use crate::tree::{ProxyId, RTree};
 
 /// Which distance a join uses ([contract S8](crate::contract)).
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum JoinMode {
     /// Pair iff the Euclidean distance between the closed boxes is `<= d`.

@@ -17,6 +17,7 @@ use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 
 /// One hit: the entry's key and the ray parameter where the ray enters its
 /// box (`0` when the origin is inside or on the box).
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RayHit<K> {
     /// The entry hit.
@@ -26,6 +27,8 @@ pub struct RayHit<K> {
 }
 
 /// What a raycast asks for ([contract S5](crate::contract)).
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum RayMode {
     /// The hit with the smallest `(t, key)`.

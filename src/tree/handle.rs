@@ -11,6 +11,9 @@ use super::node::NIL;
 /// is removed the handle is refused with
 /// [`SpatialError::UnknownProxy`](crate::SpatialError::UnknownProxy), even
 /// after the slot is reused by a new entry.
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+// Opaque: a handle is only meaningful as the index issued it.
+#[cfg_attr(feature = "reflect", reflect(opaque, Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct ProxyId {
     pub(crate) index: u32,
