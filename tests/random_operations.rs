@@ -134,7 +134,7 @@ impl Model {
     /// One random mutation, or a refused one that must change nothing.
     fn step(&mut self) {
         let profile = self.profile;
-        match self.rng.below(20) {
+        match self.rng.below(23) {
             0..=4 => {
                 let aabb = random_box(&mut self.rng, profile);
                 self.insert(aabb);
@@ -187,6 +187,20 @@ impl Model {
                     self.tree.rebuild();
                 }
             }
+            20 => self.tree.start_rebuild(),
+            21 => {
+                // A slice of the rebuild under way (a swap when it
+                // completes).
+                let units = [1, 3, 10, usize::MAX][self.rng.below(4)];
+                self.tree.step_rebuild_units(units);
+            }
+            22 => {
+                if self.rng.below(6) == 0 {
+                    self.tree.cancel_rebuild();
+                } else {
+                    self.tree.step_rebuild_units(1);
+                }
+            }
             17 => {
                 // Invalid input: refused, and nothing changes.
                 let bad = [
@@ -226,11 +240,16 @@ impl Model {
         }
     }
 
-    /// Invariants, the repair queue's bound and every query family.
+    /// Invariants, the repair queue's bound, live handles and every query
+    /// family.
     fn check(&mut self) {
         let moved: Vec<(u32, ProxyId)> = (0..3).filter_map(|_| self.pick()).collect();
         let tree = &self.tree;
         tree.validate().unwrap();
+        for &(key, id) in &moved {
+            let box_now = self.oracle.entries().iter().find(|e| e.0 == key).unwrap().1;
+            assert_eq!(tree.get(id), Ok((key, box_now)), "handle of {key}");
+        }
         assert_eq!(tree.len(), self.oracle.len());
         assert!(
             tree.pending_repairs() <= tree.nodes_at_level(1),
@@ -328,8 +347,10 @@ fn soak(steps: usize, seed: u64) {
             profile,
             rng: SceneRng::new(seed + p as u64),
         };
+        let mut swaps = 0;
         for step in 0..steps {
             model.step();
+            swaps += model.tree.take_maintenance_stats().rebuilds;
             // Keep the size around a few hundred entries.
             if model.handles.len() > 400 {
                 model.tree.clear();
@@ -340,6 +361,8 @@ fn soak(steps: usize, seed: u64) {
                 panic!("{profile:?}, seed {seed}, step {step}: see the failure above");
             }
         }
+        // Rebuilds were swapped in among the other operations.
+        assert!(swaps >= 1, "{profile:?}: {swaps} rebuilds swapped in");
     }
 }
 

@@ -53,6 +53,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.proxies[proxy as usize].leaf = 0;
             ids.push(self.handle(proxy));
             self.len += 1;
+            self.note_change(proxy, None);
         }
         self.rebuild_from(&exact);
         Ok(ids)
@@ -63,6 +64,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// starts again from the exact box and the margin, without the stretch
     /// of past moves. Handles stay valid; answers do not change.
     pub fn rebuild(&mut self) {
+        // A rebuild under way would only redo this.
+        self.rebuild_job = None;
         let exact = self.collect_exact_boxes();
         self.rebuild_from(&exact);
     }
@@ -140,7 +143,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// within 1 % of the full packing's visits, rays within 3 %. 15 leaves
     /// per level-1 node gained nothing and 12 lost; room in the leaves
     /// themselves made the fresh tree worse (see `docs/performance.md`).
-    fn groups_at(level: u16, entries: usize) -> usize {
+    pub(super) fn groups_at(level: u16, entries: usize) -> usize {
         let full = entries.div_ceil(W);
         if level != 1 {
             return full;

@@ -20,6 +20,7 @@ mod insert;
 pub(crate) mod node;
 mod optimize;
 mod prefetch;
+mod rebuild;
 mod remove;
 mod repair_queue;
 mod settings;
@@ -103,6 +104,8 @@ pub struct RTree<K, const W: usize = 16> {
     /// Level-1 nodes whose churn crossed the threshold, for `optimize`.
     dirty: RepairQueue,
     maintenance: MaintenanceStats,
+    /// A rebuild under way ([`RTree::start_rebuild`]).
+    rebuild_job: Option<Box<rebuild::RebuildJob<W>>>,
 }
 
 impl<K: Copy + Ord> Default for RTree<K, 16> {
@@ -154,6 +157,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             settings,
             dirty: RepairQueue::default(),
             maintenance: MaintenanceStats::default(),
+            rebuild_job: None,
         })
     }
 
@@ -272,6 +276,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Removes every entry; handles issued before are refused afterwards.
     pub fn clear(&mut self) {
+        self.rebuild_job = None;
         for (proxy, stamp) in self.proxies.iter_mut().zip(&mut self.stamps) {
             if proxy.is_live() {
                 proxy.leaf = NIL;

@@ -36,4 +36,6 @@ pub struct MaintenanceStats {
     pub condensed_nodes: u64,
     /// Nodes repacked by [`RTree::optimize`](super::RTree::optimize).
     pub repacks: u64,
+    /// Rebuilds swapped in by [`RTree::step_rebuild`](super::RTree::step_rebuild).
+    pub rebuilds: u64,
 }

@@ -110,6 +110,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     fn move_proxy(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
+        if self.rebuild_job.is_some() {
+            self.note_change(proxy, Some(&aabb));
+        }
         let (leaf, lane, fat) = {
             let p = &self.proxies[proxy as usize];
             (p.leaf, p.lane as usize, p.fat)

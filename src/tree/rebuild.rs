@@ -1,0 +1,439 @@
+//! A rebuild spread over frames: a new structure is bulk loaded beside the
+//! current one, a little each step, while the tree keeps answering and
+//! changing; when it is complete it is swapped in, and the changes made in
+//! the meantime that the new structure has not absorbed are applied to it.
+//!
+//! The new structure is partitioned from a snapshot of the entries' boxes
+//! (the costly part: the median cuts of the k-d tiling), but its leaves
+//! take each entry's box as it is when the leaf is filled, with a fresh
+//! enlarged box. Once an entry sits in a new leaf, a move inside that
+//! enlarged box is mirrored there at once (one lane write); any other
+//! change (a move beyond it, an insert, a removal) marks the entry, and the
+//! swap detaches and reinserts the marked entries only. Handles are slot
+//! indices and generations, which the swap does not touch: they stay
+//! valid, and answers never change (the swapped structure holds exactly
+//! the live entries with their current boxes; `validate` checks it).
+
+use std::time::{Duration, Instant};
+
+use super::bulk::{centre_key, group_range, widest_centre_axis};
+use super::handle::Stamp;
+use super::node::{NIL, Node};
+use super::{Entry, RTree};
+use crate::geometry::Aabb;
+
+/// A rebuild in progress, owned by its tree.
+#[derive(Clone, Debug)]
+pub(super) struct RebuildJob<const W: usize> {
+    /// The new structure's nodes.
+    nodes: Vec<Node<W>>,
+    /// Per slot: the stamp of the entry the snapshot holds, so that a slot
+    /// reused since is told apart.
+    snapshot_stamps: Vec<Stamp>,
+    /// Per slot: where the new structure holds the entry (leaf, lane) and
+    /// its enlarged box there, once its leaf is filled.
+    placed: Vec<(u32, u32, Aabb)>,
+    /// Slots changed in a way the new structure has not absorbed, each once.
+    marked: Vec<u32>,
+    is_marked: Vec<bool>,
+    /// What remains to do.
+    phase: Phase,
+}
+
+#[derive(Clone, Debug)]
+enum Phase {
+    /// Tiling the entries of `level` into `groups` groups: median cuts
+    /// still to make, as (start, end, first group, group count).
+    Partition {
+        level: u16,
+        entries: Vec<Entry>,
+        groups: usize,
+        cuts: Vec<(usize, usize, usize, usize)>,
+    },
+    /// Filling a node per group of `level`, from `next_group` on, and
+    /// gathering their entries for the level above.
+    Fill {
+        level: u16,
+        entries: Vec<Entry>,
+        groups: usize,
+        next_group: usize,
+        above: Vec<Entry>,
+    },
+    /// Built: the new root.
+    Done { root: u32 },
+}
+
+impl<K: Copy + Ord, const W: usize> RTree<K, W> {
+    /// Starts rebuilding the tree's structure beside the current one, to
+    /// be advanced by [`RTree::step_rebuild`] a little at a time (a rebuild
+    /// already under way goes on). While it runs the tree answers and
+    /// changes as usual; when it completes it is swapped in, as fresh as
+    /// [`RTree::rebuild`] makes it. Handles stay valid and answers never
+    /// change, before, during and after the swap.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    /// use std::time::Duration;
+    ///
+    /// let mut tree = RTree::new();
+    /// let ids: Vec<_> = (0..1_000u32)
+    ///     .map(|i| tree.insert(i, Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 1.0))?))
+    ///     .collect::<Result<_, _>>()?;
+    /// tree.start_rebuild();
+    /// let mut frames = 0;
+    /// loop {
+    ///     // A frame: moves as usual, then a slice of the rebuild.
+    ///     tree.update(ids[7], Aabb::new(Vec3::splat(-5.0), Vec3::splat(-4.0))?)?;
+    ///     frames += 1;
+    ///     if tree.step_rebuild(Duration::from_micros(200)) {
+    ///         break;
+    ///     }
+    /// }
+    /// assert!(!tree.rebuild_pending());
+    /// assert_eq!(tree.containing_point(Vec3::splat(-4.5)), vec![7]);
+    /// tree.validate().unwrap();
+    /// # let _ = frames;
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn start_rebuild(&mut self) {
+        if self.rebuild_job.is_some() {
+            return;
+        }
+        let settings = self.settings;
+        let entries: Vec<Entry> = self
+            .proxies
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.is_live())
+            .map(|(i, p)| {
+                let exact = self.nodes[p.leaf as usize].lane_box(p.lane as usize);
+                let fat = settings.fatten(&exact, glam::Vec3::ZERO);
+                Entry {
+                    lane_box: exact,
+                    bound: fat,
+                    child: i as u32,
+                }
+            })
+            .collect();
+        let slots = self.proxies.len();
+        self.rebuild_job = Some(Box::new(RebuildJob {
+            nodes: Vec::new(),
+            snapshot_stamps: self.stamps.clone(),
+            placed: vec![(NIL, 0, Aabb::INVERTED); slots],
+            marked: Vec::new(),
+            is_marked: vec![false; slots],
+            phase: Self::partition_phase(0, entries),
+        }));
+    }
+
+    /// Whether a rebuild started by [`RTree::start_rebuild`] is under way.
+    pub fn rebuild_pending(&self) -> bool {
+        self.rebuild_job.is_some()
+    }
+
+    /// Drops a rebuild under way; the tree is as it would be without it.
+    pub fn cancel_rebuild(&mut self) {
+        self.rebuild_job = None;
+    }
+
+    /// Advances the rebuild under way for about `budget` (one median cut or
+    /// one node at least, so that every call makes progress; the first
+    /// cuts of a large tree take longest, about 1 ms per 100,000 entries).
+    /// When the new structure is complete it is swapped in and `true` is
+    /// returned; `false` while work remains or when no rebuild is under
+    /// way.
+    pub fn step_rebuild(&mut self, budget: Duration) -> bool {
+        let deadline = Instant::now() + budget;
+        self.step_rebuild_until(usize::MAX, Some(deadline))
+    }
+
+    /// [`RTree::step_rebuild`] by a count of work units (median cuts and
+    /// nodes), for tests that must not depend on the clock.
+    #[doc(hidden)]
+    pub fn step_rebuild_units(&mut self, units: usize) -> bool {
+        self.step_rebuild_until(units.max(1), None)
+    }
+
+    fn step_rebuild_until(&mut self, units: usize, deadline: Option<Instant>) -> bool {
+        let Some(mut job) = self.rebuild_job.take() else {
+            return false;
+        };
+        let mut done = 0usize;
+        loop {
+            if let Phase::Done { root } = job.phase {
+                self.swap_in(*job, root);
+                return true;
+            }
+            self.advance(&mut job);
+            done += 1;
+            let out_of_time = deadline.is_some_and(|d| Instant::now() >= d);
+            if done >= units || out_of_time {
+                if let Phase::Done { root } = job.phase {
+                    self.swap_in(*job, root);
+                    return true;
+                }
+                self.rebuild_job = Some(job);
+                return false;
+            }
+        }
+    }
+
+    /// The first phase of a level: tiling, or the root if the entries fit
+    /// in one node.
+    fn partition_phase(level: u16, entries: Vec<Entry>) -> Phase {
+        let groups = if entries.len() <= W {
+            1
+        } else {
+            Self::groups_at(level, entries.len())
+        };
+        let cuts = vec![(0, entries.len(), 0, groups)];
+        Phase::Partition {
+            level,
+            entries,
+            groups,
+            cuts,
+        }
+    }
+
+    /// One unit of work: a median cut, or a node filled.
+    fn advance(&self, job: &mut RebuildJob<W>) {
+        match &mut job.phase {
+            Phase::Partition {
+                level,
+                entries,
+                groups,
+                cuts,
+            } => {
+                if let Some((start, end, first, count)) = cuts.pop()
+                    && count > 1
+                {
+                    let n = entries.len();
+                    let slice = &mut entries[start..end];
+                    let axis = widest_centre_axis(slice);
+                    let left = count / 2;
+                    let cut = group_range(n, *groups, first + left).start - start;
+                    slice.select_nth_unstable_by(cut, |a, b| {
+                        centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis))
+                    });
+                    cuts.push((start, start + cut, first, left));
+                    cuts.push((start + cut, end, first + left, count - left));
+                }
+                if cuts.is_empty() {
+                    job.phase = Phase::Fill {
+                        level: *level,
+                        entries: std::mem::take(entries),
+                        groups: *groups,
+                        next_group: 0,
+                        above: Vec::new(),
+                    };
+                }
+            }
+            Phase::Fill {
+                level,
+                entries,
+                groups,
+                next_group,
+                above,
+            } => {
+                let range = group_range(entries.len(), *groups, *next_group);
+                *next_group += 1;
+                let node = if *level == 0 {
+                    self.fill_new_leaf(
+                        &mut job.nodes,
+                        &mut job.placed,
+                        &entries[range],
+                        &job.snapshot_stamps,
+                    )
+                } else {
+                    Some(fill_new_internal(&mut job.nodes, *level, &entries[range]))
+                };
+                if let Some((index, bound)) = node {
+                    above.push(Entry {
+                        lane_box: bound,
+                        bound,
+                        child: index,
+                    });
+                }
+                if *next_group == *groups {
+                    let level_done = *level;
+                    let above = std::mem::take(above);
+                    job.phase = if above.is_empty() {
+                        // Every entry left meanwhile: an empty leaf.
+                        job.nodes.push(Node::empty(0, NIL));
+                        Phase::Done {
+                            root: (job.nodes.len() - 1) as u32,
+                        }
+                    } else if *groups == 1 {
+                        // This level's one node is the root.
+                        Phase::Done {
+                            root: above[0].child,
+                        }
+                    } else {
+                        Self::partition_phase(level_done + 1, above)
+                    };
+                }
+            }
+            Phase::Done { .. } => {}
+        }
+    }
+
+    /// Fills a new leaf with the entries of a group that still hold the
+    /// entry the snapshot saw, each with its box as it is now and a fresh
+    /// enlarged box; returns the leaf and its bound, or `None` if every
+    /// entry of the group left meanwhile.
+    fn fill_new_leaf(
+        &self,
+        nodes: &mut Vec<Node<W>>,
+        placed: &mut [(u32, u32, Aabb)],
+        group: &[Entry],
+        snapshot_stamps: &[Stamp],
+    ) -> Option<(u32, Aabb)> {
+        let index = nodes.len() as u32;
+        let mut leaf = Node::empty(0, NIL);
+        let mut bound = Aabb::INVERTED;
+        let mut lane = 0;
+        for entry in group {
+            let slot = entry.child as usize;
+            let proxy = &self.proxies[slot];
+            if !proxy.is_live() || self.stamps[slot] != snapshot_stamps[slot] {
+                continue;
+            }
+            let exact = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
+            let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
+            leaf.set_lane_box(lane, &exact);
+            leaf.child[lane] = entry.child;
+            placed[slot] = (index, lane as u32, fat);
+            bound = bound.union(&fat);
+            lane += 1;
+        }
+        if lane == 0 {
+            return None;
+        }
+        leaf.len = lane as u16;
+        leaf.refresh_order();
+        nodes.push(leaf);
+        Some((index, bound))
+    }
+
+    /// Called on every change of a slot while a rebuild is under way: a
+    /// move inside the entry's new enlarged box is mirrored in its new
+    /// leaf; any other change marks the slot for the swap.
+    pub(super) fn note_change(&mut self, slot: u32, moved_to: Option<&Aabb>) {
+        let Some(job) = self.rebuild_job.as_deref_mut() else {
+            return;
+        };
+        let s = slot as usize;
+        if let (Some(aabb), Some(&(leaf, lane, fat))) = (moved_to, job.placed.get(s))
+            && leaf != NIL
+            && fat.contains(aabb)
+        {
+            job.nodes[leaf as usize].set_lane_box(lane as usize, aabb);
+            return;
+        }
+        if s >= job.is_marked.len() {
+            job.is_marked.resize(s + 1, false);
+        }
+        if !job.is_marked[s] {
+            job.is_marked[s] = true;
+            job.marked.push(slot);
+        }
+    }
+
+    /// Installs the new structure and applies the marked changes to it.
+    fn swap_in(&mut self, job: RebuildJob<W>, root: u32) {
+        let RebuildJob {
+            nodes,
+            placed,
+            marked,
+            ..
+        } = job;
+        // The marked entries' boxes as they are now, read from the
+        // structure about to go.
+        let replay: Vec<(u32, Option<Aabb>)> = marked
+            .iter()
+            .map(|&slot| {
+                let p = &self.proxies[slot as usize];
+                let now = p
+                    .is_live()
+                    .then(|| self.nodes[p.leaf as usize].lane_box(p.lane as usize));
+                (slot, now)
+            })
+            .collect();
+        let count = nodes.len();
+        self.nodes = nodes;
+        self.root = root;
+        self.free_nodes.clear();
+        self.churn = vec![0; count];
+        self.held_bounds = vec![Aabb::EVERYWHERE; count];
+        self.dirty.clear();
+        for index in 0..count as u32 {
+            let node = &self.nodes[index as usize];
+            if node.is_leaf() {
+                continue;
+            }
+            for lane in 0..node.len() {
+                self.held_bounds[node.child[lane] as usize] = node.lane_box(lane);
+            }
+        }
+        // Every slot's record now points into the new structure (or
+        // nowhere, for an entry it does not hold).
+        for (slot, proxy) in self.proxies.iter_mut().enumerate() {
+            match placed.get(slot) {
+                Some(&(leaf, lane, fat)) if leaf != NIL => {
+                    proxy.leaf = leaf;
+                    proxy.lane = lane;
+                    proxy.fat = fat;
+                }
+                _ => proxy.leaf = NIL,
+            }
+        }
+        for (slot, now) in replay {
+            let s = slot as usize;
+            if self.proxies[s].is_live() {
+                // The new structure holds what the snapshot's entry was.
+                self.detach(slot);
+                self.proxies[s].leaf = NIL;
+            }
+            if let Some(exact) = now {
+                let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
+                self.proxies[s].fat = fat;
+                self.insert_entry(
+                    Entry {
+                        lane_box: exact,
+                        bound: fat,
+                        child: slot,
+                    },
+                    0,
+                );
+            }
+        }
+        // Entries that left meanwhile may leave a root with one child.
+        self.shrink_root();
+        self.maintenance.rebuilds += 1;
+    }
+}
+
+/// Fills a new internal node of `level` with the nodes of a group (the
+/// entries of the level below); returns it and its bound.
+fn fill_new_internal<const W: usize>(
+    nodes: &mut Vec<Node<W>>,
+    level: u16,
+    group: &[Entry],
+) -> (u32, Aabb) {
+    let index = nodes.len() as u32;
+    let mut node = Node::empty(level, NIL);
+    let mut bound = Aabb::INVERTED;
+    for (lane, entry) in group.iter().enumerate() {
+        node.set_lane_box(lane, &entry.lane_box);
+        node.child[lane] = entry.child;
+        bound = bound.union(&entry.bound);
+    }
+    node.len = group.len() as u16;
+    node.refresh_order();
+    nodes.push(node);
+    for entry in group {
+        nodes[entry.child as usize].parent = index;
+    }
+    (index, bound)
+}
