@@ -7,8 +7,10 @@
 //! the ratio maintained ÷ fresh (1.00 = as good as fresh); beside it, the
 //! maintenance time per frame (mean of the last 200 frames).
 //!
-//! `cargo bench --bench decay` (`-- --frames 500` for a shorter run; words
-//! after `--` pick patterns by name). Deterministic from the seed.
+//! `cargo bench --bench decay` (`-- --frames 500` for a shorter run;
+//! `-- --rebuild-us 100` rebuilds every tree continuously in slices of
+//! 100 µs a frame; words after `--` pick patterns by name). Deterministic
+//! from the seed, apart from where the time-budgeted slices end.
 
 use std::time::Instant;
 
@@ -72,10 +74,13 @@ struct World {
     bullets: Vec<(ProxyId, Vec3, Vec3, u32)>,
     rng: SceneRng,
     frame: u32,
+    /// With `--rebuild-us N`: each tree rebuilt continuously in slices of
+    /// `N` µs a frame.
+    rebuild_budget: Option<std::time::Duration>,
 }
 
 impl World {
-    fn new(scene: &TownScene) -> World {
+    fn new(scene: &TownScene, rebuild_budget: Option<std::time::Duration>) -> World {
         let boxes = scene.boxes();
         let centres: Vec<Vec3> = boxes.iter().map(|b| (b.min + b.max) * 0.5).collect();
         let halves: Vec<Vec3> = boxes.iter().map(|b| (b.max - b.min) * 0.5).collect();
@@ -105,6 +110,7 @@ impl World {
             bullets: Vec::new(),
             rng,
             frame: 0,
+            rebuild_budget,
         }
     }
 
@@ -219,9 +225,15 @@ impl World {
         if pattern == Pattern::Bullets {
             self.fire_bullets();
         }
-        self.all.optimize(OPTIMIZE_BUDGET);
-        self.enemies.optimize(OPTIMIZE_BUDGET);
-        self.barrels.optimize(OPTIMIZE_BUDGET);
+        for tree in [&mut self.all, &mut self.enemies, &mut self.barrels] {
+            tree.optimize(OPTIMIZE_BUDGET);
+            if let Some(budget) = self.rebuild_budget {
+                if !tree.rebuild_pending() {
+                    tree.start_rebuild();
+                }
+                tree.step_rebuild(budget);
+            }
+        }
         self.frame += 1;
         start.elapsed().as_secs_f64() * 1e3
     }
@@ -358,9 +370,9 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
-fn run(pattern: Pattern, frames: u32) {
+fn run(pattern: Pattern, frames: u32, rebuild_budget: Option<std::time::Duration>) {
     let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
-    let mut world = World::new(&scene);
+    let mut world = World::new(&scene, rebuild_budget);
     let mut maintenance = Vec::new();
     for _ in 0..frames {
         maintenance.push(world.advance(pattern));
@@ -420,12 +432,19 @@ fn main() {
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
         .unwrap_or(2_000u32);
+    let rebuild_budget = args
+        .iter()
+        .position(|a| a == "--rebuild-us")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .map(std::time::Duration::from_micros);
     let picked: Vec<&String> = args
         .iter()
         .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
         .collect();
     println!(
-        "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 alternating runs"
+        "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 \
+         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame"
     );
     println!();
     println!(
@@ -436,7 +455,7 @@ fn main() {
     for pattern in PATTERNS {
         let name = format!("{pattern:?}").to_lowercase();
         if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {
-            run(pattern, frames);
+            run(pattern, frames, rebuild_budget);
         }
     }
 }

@@ -5,8 +5,8 @@
 //!
 //! The new structure is partitioned from a snapshot of the entries' boxes
 //! (the costly part: the median cuts of the k-d tiling), but its leaves
-//! take each entry's box as it is when the leaf is filled, with a fresh
-//! enlarged box. Once an entry sits in a new leaf, a move inside that
+//! take each entry's box as it is when the leaf is filled, with the
+//! enlarged box the tree gives it then. Once an entry sits in a new leaf, a move inside that
 //! enlarged box is mirrored there at once (one lane write); any other
 //! change (a move beyond it, an insert, a removal) marks the entry, and the
 //! swap detaches and reinserts the marked entries only. Handles are slot
@@ -33,6 +33,9 @@ pub(super) struct RebuildJob<const W: usize> {
     /// Per slot: where the new structure holds the entry (leaf, lane) and
     /// its enlarged box there, once its leaf is filled.
     placed: Vec<(u32, u32, Aabb)>,
+    /// Per node of the new structure: for a leaf, the bound its parent
+    /// holds for it (fixed once filled).
+    leaf_bounds: Vec<Aabb>,
     /// Slots changed in a way the new structure has not absorbed, each once.
     marked: Vec<u32>,
     is_marked: Vec<bool>,
@@ -67,9 +70,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Starts rebuilding the tree's structure beside the current one, to
     /// be advanced by [`RTree::step_rebuild`] a little at a time (a rebuild
     /// already under way goes on). While it runs the tree answers and
-    /// changes as usual; when it completes it is swapped in, as fresh as
-    /// [`RTree::rebuild`] makes it. Handles stay valid and answers never
-    /// change, before, during and after the swap.
+    /// changes as usual; when it completes it is swapped in, tiled as
+    /// [`RTree::rebuild`] tiles it (each entry keeps the enlarged box the
+    /// tree gave it, with the stretch of its motion, where `rebuild` starts
+    /// every one afresh). Handles stay valid and answers never change,
+    /// before, during and after the swap.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -121,6 +126,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             nodes: Vec::new(),
             snapshot_stamps: self.stamps.clone(),
             placed: vec![(NIL, 0, Aabb::INVERTED); slots],
+            leaf_bounds: Vec::new(),
             marked: Vec::new(),
             is_marked: vec![false; slots],
             phase: Self::partition_phase(0, entries),
@@ -239,12 +245,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 let range = group_range(entries.len(), *groups, *next_group);
                 *next_group += 1;
                 let node = if *level == 0 {
-                    self.fill_new_leaf(
+                    let lone = *groups == 1;
+                    let marks = (&mut job.marked, &mut job.is_marked);
+                    let group = &entries[range];
+                    let filled = self.fill_new_leaf(
                         &mut job.nodes,
                         &mut job.placed,
-                        &entries[range],
+                        marks,
+                        group,
+                        lone,
                         &job.snapshot_stamps,
-                    )
+                    );
+                    if let Some((index, bound)) = filled {
+                        job.leaf_bounds.resize(index as usize + 1, Aabb::INVERTED);
+                        job.leaf_bounds[index as usize] = bound;
+                    }
+                    filled
                 } else {
                     Some(fill_new_internal(&mut job.nodes, *level, &entries[range]))
                 };
@@ -279,57 +295,92 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Fills a new leaf with the entries of a group that still hold the
-    /// entry the snapshot saw, each with its box as it is now and a fresh
-    /// enlarged box; returns the leaf and its bound, or `None` if every
-    /// entry of the group left meanwhile.
+    /// entry the snapshot saw, each with its box as it is now and the
+    /// enlarged box the tree gives it now (with the stretch of its recent
+    /// motion); returns the leaf and its bound. An entry that jumped since
+    /// the snapshot (farther than [`TreeSettings::jump_limit`] box sizes)
+    /// would stretch a leaf tiled for where it was: it is marked for
+    /// reinsertion at the swap instead, and so are the entries of a group
+    /// that kept too few to fill a node (`None`; unless the group is the
+    /// whole tree).
+    ///
+    /// [`TreeSettings::jump_limit`]: crate::TreeSettings::jump_limit
     fn fill_new_leaf(
         &self,
         nodes: &mut Vec<Node<W>>,
         placed: &mut [(u32, u32, Aabb)],
+        (marked, is_marked): (&mut Vec<u32>, &mut Vec<bool>),
         group: &[Entry],
+        lone: bool,
         snapshot_stamps: &[Stamp],
     ) -> Option<(u32, Aabb)> {
-        let index = nodes.len() as u32;
         let mut leaf = Node::empty(0, NIL);
-        let mut bound = Aabb::INVERTED;
-        let mut lane = 0;
+        let mut kept: smallvec::SmallVec<[(u32, Aabb); 16]> = smallvec::SmallVec::new();
+        let mut mark = |slot: u32| {
+            if !is_marked[slot as usize] {
+                is_marked[slot as usize] = true;
+                marked.push(slot);
+            }
+        };
         for entry in group {
             let slot = entry.child as usize;
             let proxy = &self.proxies[slot];
             if !proxy.is_live() || self.stamps[slot] != snapshot_stamps[slot] {
+                // Removed meanwhile (and marked then).
                 continue;
             }
             let exact = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
-            let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
-            leaf.set_lane_box(lane, &exact);
-            leaf.child[lane] = entry.child;
-            placed[slot] = (index, lane as u32, fat);
-            bound = bound.union(&fat);
-            lane += 1;
+            let then = entry.lane_box;
+            let size = then.extent().max_element().max(self.settings.margin);
+            let moved = ((exact.min + exact.max) - (then.min + then.max)).abs() * 0.5;
+            if moved.max_element() > self.settings.jump_limit * size {
+                mark(entry.child);
+                continue;
+            }
+            kept.push((entry.child, exact));
         }
-        if lane == 0 {
+        if kept.is_empty() || (kept.len() < Self::MIN_FILL && !lone) {
+            kept.iter().for_each(|&(slot, _)| mark(slot));
             return None;
         }
-        leaf.len = lane as u16;
+        let index = nodes.len() as u32;
+        let mut bound = Aabb::INVERTED;
+        for (lane, &(slot, exact)) in kept.iter().enumerate() {
+            let fat = self.proxies[slot as usize].fat;
+            leaf.set_lane_box(lane, &exact);
+            leaf.child[lane] = slot;
+            placed[slot as usize] = (index, lane as u32, fat);
+            bound = bound.union(&fat);
+        }
+        leaf.len = kept.len() as u16;
         leaf.refresh_order();
         nodes.push(leaf);
         Some((index, bound))
     }
 
-    /// Called on every change of a slot while a rebuild is under way: a
-    /// move inside the entry's new enlarged box is mirrored in its new
-    /// leaf; any other change marks the slot for the swap.
-    pub(super) fn note_change(&mut self, slot: u32, moved_to: Option<&Aabb>) {
+    /// Called on every change of a slot while a rebuild is under way, after
+    /// this structure made it: a move whose new enlarged box (`moved_to`:
+    /// the exact box and the enlarged one this structure gave it) stays
+    /// inside the bound of the entry's new leaf is mirrored there (a lane
+    /// write); any other change marks the slot for the swap.
+    pub(super) fn note_change(&mut self, slot: u32, moved_to: Option<(&Aabb, &Aabb)>) {
         let Some(job) = self.rebuild_job.as_deref_mut() else {
             return;
         };
         let s = slot as usize;
-        if let (Some(aabb), Some(&(leaf, lane, fat))) = (moved_to, job.placed.get(s))
-            && leaf != NIL
-            && fat.contains(aabb)
+        if let (Some((exact, fat)), Some(placed)) = (moved_to, job.placed.get_mut(s))
+            && !job.is_marked[s]
         {
-            job.nodes[leaf as usize].set_lane_box(lane as usize, aabb);
-            return;
+            if placed.0 == NIL {
+                // Not in a new leaf yet: its leaf will take the box it has
+                // then.
+                return;
+            }
+            if job.leaf_bounds[placed.0 as usize].contains(fat) {
+                job.nodes[placed.0 as usize].set_lane_box(placed.1 as usize, exact);
+                placed.2 = *fat;
+                return;
+            }
         }
         if s >= job.is_marked.len() {
             job.is_marked.resize(s + 1, false);
@@ -346,6 +397,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             nodes,
             placed,
             marked,
+            snapshot_stamps,
             ..
         } = job;
         // The marked entries' boxes as they are now, read from the
@@ -390,6 +442,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         for (slot, now) in replay {
             let s = slot as usize;
+            let same_entry = snapshot_stamps.get(s) == Some(&self.stamps[s]);
+            if let (true, true, Some(exact)) = (self.proxies[s].is_live(), same_entry, now) {
+                // The entry moved beyond its new leaf: moved there as any
+                // move is (most only grow the leaf's bound).
+                self.move_proxy_here(slot, exact);
+                continue;
+            }
             if self.proxies[s].is_live() {
                 // The new structure holds what the snapshot's entry was.
                 self.detach(slot);

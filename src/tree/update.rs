@@ -110,9 +110,17 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     fn move_proxy(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
+        let kind = self.move_proxy_here(proxy, aabb);
         if self.rebuild_job.is_some() {
-            self.note_change(proxy, Some(&aabb));
+            let fat = self.proxies[proxy as usize].fat;
+            self.note_change(proxy, Some((&aabb, &fat)));
         }
+        kind
+    }
+
+    /// [`Self::move_proxy`] in this structure (a rebuild under way is told
+    /// afterwards).
+    pub(super) fn move_proxy_here(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
         let (leaf, lane, fat) = {
             let p = &self.proxies[proxy as usize];
             (p.leaf, p.lane as usize, p.fat)
