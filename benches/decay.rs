@@ -8,8 +8,11 @@
 //! maintenance time per frame (mean of the last 200 frames).
 //!
 //! `cargo bench --bench decay` (`-- --frames 500` for a shorter run;
-//! `-- --rebuild-us 100` rebuilds every tree continuously in slices of
-//! 100 µs a frame; words after `--` pick patterns by name). Deterministic
+//! `-- --rebuild-us 100` keeps every tree rebuilt when worn
+//! (`RTree::rebuild_when_worn`) in slices of 100 µs a frame; `-- --retiled` adds a row for the maintained trees
+//! retiled at the end, each entry keeping its enlarged box; words after
+//! `--` pick patterns by name). Beside the times, the nodes all families
+//! visited, maintained ÷ fresh: the same ratio without the timer's noise. Deterministic
 //! from the seed, apart from where the time-budgeted slices end.
 
 use std::time::Instant;
@@ -228,10 +231,7 @@ impl World {
         for tree in [&mut self.all, &mut self.enemies, &mut self.barrels] {
             tree.optimize(OPTIMIZE_BUDGET);
             if let Some(budget) = self.rebuild_budget {
-                if !tree.rebuild_pending() {
-                    tree.start_rebuild();
-                }
-                tree.step_rebuild(budget);
+                tree.rebuild_when_worn(budget);
             }
         }
         self.frame += 1;
@@ -370,7 +370,7 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
-fn run(pattern: Pattern, frames: u32, rebuild_budget: Option<std::time::Duration>) {
+fn run(pattern: Pattern, frames: u32, rebuild_budget: Option<std::time::Duration>, retiled: bool) {
     let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
     let mut world = World::new(&scene, rebuild_budget);
     let mut maintenance = Vec::new();
@@ -401,27 +401,66 @@ fn run(pattern: Pattern, frames: u32, rebuild_budget: Option<std::time::Duration
             })
             .collect(),
     };
+    let mut rows = vec![(
+        "maintained",
+        compare(pattern, &maintained, &fresh, &queries),
+    )];
+    if retiled {
+        // The same entries retiled in place, each keeping the enlarged box
+        // the tree gave it: what a rebuild can restore.
+        let again = maintained.clone().map(|mut tree| {
+            tree.start_rebuild();
+            while !tree.step_rebuild_units(usize::MAX) {}
+            tree
+        });
+        rows.push(("retiled", compare(pattern, &again, &fresh, &queries)));
+    }
+    for (label, (times, work)) in rows {
+        let cells: Vec<String> = times.iter().map(|r| format!("{r:.2}")).collect();
+        println!(
+            "| {pattern:?}, {label} | {} | {work:.2} | {per_frame:.3} |",
+            cells.join(" | ")
+        );
+    }
+}
+
+/// Each family's median time on `trees` ÷ on `fresh` (alternating runs),
+/// and the nodes all families visited on `trees` ÷ on `fresh`.
+fn compare(
+    pattern: Pattern,
+    trees: &[RTree<u32>; 3],
+    fresh: &[RTree<u32>; 3],
+    queries: &Queries,
+) -> (Vec<f64>, f64) {
     let mut ws = QueryWorkspace::default();
     let mut cells = Vec::new();
+    let mut visited = [0u64; 2];
     for (f, family) in FAMILIES.iter().enumerate() {
         let (mut kept, mut new) = (Vec::new(), Vec::new());
         for rep in 0..7 {
-            let order: [&[RTree<u32>; 3]; 2] = if rep % 2 == 0 {
-                [&maintained, &fresh]
-            } else {
-                [&fresh, &maintained]
+            let mut run = |which: usize| {
+                let set = if which == 0 { trees } else { fresh };
+                ws.take_stats();
+                let out = queries.run(f, set, &mut ws);
+                if rep == 0 {
+                    visited[which] += ws.stats().nodes_visited;
+                }
+                out
             };
-            let a = queries.run(f, order[0], &mut ws);
-            let b = queries.run(f, order[1], &mut ws);
-            let (m, n) = if rep % 2 == 0 { (a, b) } else { (b, a) };
+            let (m, n) = if rep % 2 == 0 {
+                let m = run(0);
+                (m, run(1))
+            } else {
+                let n = run(1);
+                (run(0), n)
+            };
             assert_eq!(m.1, n.1, "{pattern:?}: {family} answers differ");
             kept.push(m.0);
             new.push(n.0);
         }
         cells.push(median(&mut kept) / median(&mut new));
     }
-    let cells: Vec<String> = cells.iter().map(|r| format!("{r:.2}")).collect();
-    println!("| {pattern:?} | {} | {per_frame:.3} |", cells.join(" | "));
+    (cells, visited[0] as f64 / visited[1].max(1) as f64)
 }
 
 fn main() {
@@ -438,6 +477,7 @@ fn main() {
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
         .map(std::time::Duration::from_micros);
+    let retiled = args.iter().any(|a| a == "--retiled");
     let picked: Vec<&String> = args
         .iter()
         .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
@@ -448,14 +488,14 @@ fn main() {
     );
     println!();
     println!(
-        "| pattern | {} | maintenance ms/frame |",
+        "| pattern | {} | nodes visited | maintenance ms/frame |",
         FAMILIES.join(" | ")
     );
-    println!("|---|{}---:|", "---:|".repeat(FAMILIES.len()));
+    println!("|---|{}---:|---:|", "---:|".repeat(FAMILIES.len()));
     for pattern in PATTERNS {
         let name = format!("{pattern:?}").to_lowercase();
         if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {
-            run(pattern, frames, rebuild_budget);
+            run(pattern, frames, rebuild_budget, retiled);
         }
     }
 }

@@ -87,6 +87,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Packs every live proxy (exact boxes from `exact`) into a new tree,
     /// with fresh enlarged boxes.
     fn rebuild_from(&mut self, exact: &[Aabb]) {
+        self.wear = 0;
         let settings = self.settings;
         let mut level_entries: Vec<Entry> = self
             .proxies

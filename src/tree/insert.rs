@@ -44,6 +44,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         );
         self.len += 1;
         self.maintenance.inserts += 1;
+        self.wear += 1;
         self.note_change(proxy, None);
         Ok(self.handle(proxy))
     }

@@ -106,6 +106,9 @@ pub struct RTree<K, const W: usize = 16> {
     maintenance: MaintenanceStats,
     /// A rebuild under way ([`RTree::start_rebuild`]).
     rebuild_job: Option<Box<rebuild::RebuildJob<W>>>,
+    /// Changes that wear the tiling (inserts, removals, moves that grew a
+    /// leaf or were reinserted) since the last bulk load or rebuild.
+    wear: u64,
 }
 
 impl<K: Copy + Ord> Default for RTree<K, 16> {
@@ -158,6 +161,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             dirty: RepairQueue::default(),
             maintenance: MaintenanceStats::default(),
             rebuild_job: None,
+            wear: 0,
         })
     }
 

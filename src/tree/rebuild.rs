@@ -154,6 +154,53 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         self.step_rebuild_until(usize::MAX, Some(deadline))
     }
 
+    /// Keeps the tiling as good as fresh within `budget` a call: starts a
+    /// rebuild when the changes that wear the tiling (inserts, removals,
+    /// moves that grew a leaf or were reinserted) since the last one reach
+    /// a quarter of the entries, and advances it by `budget`; returns
+    /// whether one was swapped in. Call it once a frame.
+    ///
+    /// What it buys, measured on the standard scene's 100,000 entities
+    /// (`cargo bench --bench decay`, 2,000 frames): the maintained tree
+    /// visits 6 to 74 % more nodes than a fresh bulk load of the same
+    /// entries, depending on how things move, and the same entries retiled
+    /// 0 to 7 % more. With this at 0.5 ms a frame, steps come back to 9 %
+    /// more (maintenance 0.53 → 0.80 ms a frame); where 1 % of the
+    /// entries teleport or respawn every frame, a rebuild that takes tens
+    /// of frames meets a quarter of them changed at the swap, and the tree
+    /// stays 30–40 % above fresh. The plugin does not call it by default.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    /// use std::time::Duration;
+    ///
+    /// let mut tree = RTree::new();
+    /// let ids: Vec<_> = (0..2_000u32)
+    ///     .map(|i| tree.insert(i, Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 1.0))?))
+    ///     .collect::<Result<_, _>>()?;
+    /// let mut swaps = 0;
+    /// for frame in 0..200u32 {
+    ///     // Teleports wear the tiling.
+    ///     let i = (frame * 37 % 2_000) as usize;
+    ///     let far = Vec3::splat(5_000.0 - i as f32);
+    ///     tree.update(ids[i], Aabb::new(far, far + 1.0)?)?;
+    ///     swaps += usize::from(tree.rebuild_when_worn(Duration::from_micros(50)));
+    /// }
+    /// assert!(swaps > 0);
+    /// tree.validate().unwrap();
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn rebuild_when_worn(&mut self, budget: Duration) -> bool {
+        if self.rebuild_job.is_none() {
+            if self.wear * 4 < self.len as u64 || self.len <= W {
+                return false;
+            }
+            self.start_rebuild();
+        }
+        self.step_rebuild(budget)
+    }
+
     /// [`RTree::step_rebuild`] by a count of work units (median cuts and
     /// nodes), for tests that must not depend on the clock.
     #[doc(hidden)]
@@ -400,6 +447,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             snapshot_stamps,
             ..
         } = job;
+        let marked_count = marked.len();
         // The marked entries' boxes as they are now, read from the
         // structure about to go.
         let replay: Vec<(u32, Option<Aabb>)> = marked
@@ -469,6 +517,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         // Entries that left meanwhile may leave a root with one child.
         self.shrink_root();
+        self.wear = marked_count as u64;
         self.maintenance.rebuilds += 1;
     }
 }

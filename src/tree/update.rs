@@ -147,6 +147,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.nodes[leaf as usize].set_lane_box(lane, &aabb);
             self.note_churn(old_parent);
             self.maintenance.moves_leaf_grown += 1;
+            self.wear += 1;
             return MoveKind::LeafGrown;
         }
 
@@ -166,6 +167,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.note_churn(new_parent);
         }
         self.maintenance.moves_reinserted += 1;
+        self.wear += 1;
         MoveKind::Reinserted
     }
 
