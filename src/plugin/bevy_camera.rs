@@ -22,6 +22,31 @@ use crate::query::CullMode;
 ///
 /// A frustum that cannot be converted (not finite) keeps the previous one
 /// and logs a warning once per camera.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_asset::Assets;
+/// use bevy_camera::{Camera3d, CameraPlugin};
+/// use bevy_mesh::{Mesh, skinning::SkinnedMeshInverseBindposes};
+/// use bevy_rtree::prelude::*;
+/// use bevy_transform::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins((TransformPlugin, CameraPlugin, SpatialIndexPlugin::default()))
+///     // The asset stores Bevy's camera systems read, headless.
+///     .insert_resource(Assets::<Mesh>::default())
+///     .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default());
+/// let ahead = Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, -10.0), Vec3::splat(0.5))?;
+/// let behind = Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, 10.0), Vec3::splat(0.5))?;
+/// let seen = app.world_mut().spawn(SpatialBounds(ahead)).id();
+/// app.world_mut().spawn(SpatialBounds(behind));
+/// // A Bevy camera at the origin, looking down -Z.
+/// let camera = app.world_mut().spawn((Camera3d::default(), FollowBevyFrustum::default())).id();
+/// app.update();
+/// let list = app.world().get::<VisibleEntityList>(camera).unwrap();
+/// assert_eq!(list.entities(), &[seen]);
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -106,6 +106,23 @@ impl<L: Component> CullingCamera<L> {
 /// list's allocation is reused from frame to frame. When the entity loses
 /// its `CullingCamera<L>`, the list goes too, so that it never names
 /// entities that no longer exist.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let ahead = Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, -5.0), Vec3::splat(0.5))?;
+/// let crate_box = app.world_mut().spawn(SpatialBounds(ahead)).id();
+/// let frustum = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 1.5, 0.1, 100.0)?;
+/// let camera = app.world_mut().spawn(CullingCamera::new(frustum)).id();
+/// app.update();
+/// let list = app.world().get::<VisibleEntityList>(camera).unwrap();
+/// assert!(list.contains(crate_box));
+/// assert_eq!(list.entities(), &[crate_box]);
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]

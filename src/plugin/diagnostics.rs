@@ -12,6 +12,25 @@ use super::index::SyncCount;
 use crate::query::QueryWorkspace;
 
 /// Work done by one query family in one frame.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+/// app.world_mut().spawn(SpatialBounds(unit));
+/// let frustum = Frustum::perspective(Vec3::new(0.5, 0.5, 5.0), Quat::IDENTITY, 1.0, 1.5, 0.1, 100.0)?;
+/// app.world_mut().spawn(CullingCamera::new(frustum));
+/// app.update();
+/// let d = app.world().resource::<SpatialDiagnostics>();
+/// assert_eq!(d.sync.inserted, 1); // SyncWork
+/// assert_eq!(d.culling.runs, 1); // QueryWork
+/// assert!(d.culling.nodes_visited > 0);
+/// assert_eq!(d.maintenance.runs, 0); // MaintenanceWork: nothing to repair yet
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -48,6 +67,25 @@ impl QueryWork {
 }
 
 /// How the indexes followed the entities this frame, summed over layers.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+/// app.world_mut().spawn(SpatialBounds(unit));
+/// let frustum = Frustum::perspective(Vec3::new(0.5, 0.5, 5.0), Quat::IDENTITY, 1.0, 1.5, 0.1, 100.0)?;
+/// app.world_mut().spawn(CullingCamera::new(frustum));
+/// app.update();
+/// let d = app.world().resource::<SpatialDiagnostics>();
+/// assert_eq!(d.sync.inserted, 1); // SyncWork
+/// assert_eq!(d.culling.runs, 1); // QueryWork
+/// assert!(d.culling.nodes_visited > 0);
+/// assert_eq!(d.maintenance.runs, 0); // MaintenanceWork: nothing to repair yet
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -67,6 +105,25 @@ pub struct SyncWork {
 }
 
 /// Repairs of degraded leaves this frame.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+/// app.world_mut().spawn(SpatialBounds(unit));
+/// let frustum = Frustum::perspective(Vec3::new(0.5, 0.5, 5.0), Quat::IDENTITY, 1.0, 1.5, 0.1, 100.0)?;
+/// app.world_mut().spawn(CullingCamera::new(frustum));
+/// app.update();
+/// let d = app.world().resource::<SpatialDiagnostics>();
+/// assert_eq!(d.sync.inserted, 1); // SyncWork
+/// assert_eq!(d.culling.runs, 1); // QueryWork
+/// assert!(d.culling.nodes_visited > 0);
+/// assert_eq!(d.maintenance.runs, 0); // MaintenanceWork: nothing to repair yet
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -79,6 +79,29 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
 }
 
 /// Sent when a pair of join `A`×`B` appears (it was not a pair last frame).
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// #[derive(Component)]
+/// struct Enemy;
+/// #[derive(Component)]
+/// struct Barrel;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default())
+///     .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+/// let near = |x: f32| Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0));
+/// let enemy = app.world_mut().spawn((SpatialBounds(near(0.0)?), Enemy)).id();
+/// let barrel = app.world_mut().spawn((SpatialBounds(near(3.0)?), Barrel)).id();
+/// app.update();
+/// let started = app.world().resource::<Messages<PairStarted<Enemy, Barrel>>>();
+/// let pairs: Vec<_> = started.iter_current_update_messages().map(|m| (m.a, m.b)).collect();
+/// assert_eq!(pairs, [(enemy, barrel)]);
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[derive(Message)]
 pub struct PairStarted<A: Component, B: Component> {
     /// The entity of layer `A`.
@@ -90,6 +113,31 @@ pub struct PairStarted<A: Component, B: Component> {
 
 /// Sent when a pair of join `A`×`B` disappears (moved apart, despawned, left
 /// a layer).
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// #[derive(Component)]
+/// struct Enemy;
+/// #[derive(Component)]
+/// struct Barrel;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default())
+///     .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
+/// app.world_mut().spawn((SpatialBounds(unit), Enemy));
+/// let barrel = app.world_mut().spawn((SpatialBounds(unit), Barrel)).id();
+/// app.update();
+/// // The barrel is despawned: the pair ends the next frame.
+/// app.world_mut().despawn(barrel);
+/// app.update();
+/// let ended = app.world().resource::<Messages<PairEnded<Enemy, Barrel>>>();
+/// assert_eq!(ended.iter_current_update_messages().map(|m| m.b).collect::<Vec<_>>(), [barrel]);
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[derive(Message)]
 pub struct PairEnded<A: Component, B: Component> {
     /// The entity of layer `A`.

@@ -153,6 +153,39 @@ pub(crate) struct SpatialIndexConfig {
 /// The plugin's system sets, run in this order in the plugin's schedule.
 /// Order your systems against them: e.g. move entities before `Bounds`, read
 /// visible lists, hits and pairs after `Queries`.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// #[derive(Component)]
+/// struct Mover;
+///
+/// fn step(mut movers: Query<&mut SpatialBounds, With<Mover>>) {
+///     for mut bounds in &mut movers {
+///         let b = bounds.0;
+///         bounds.0 = Aabb { min: b.min + Vec3::X, max: b.max + Vec3::X };
+///     }
+/// }
+/// fn read(cameras: Query<&VisibleEntityList>) {
+///     for list in &cameras {
+///         println!("{} visible", list.entities().len());
+///     }
+/// }
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default()).add_systems(
+///     PostUpdate,
+///     (
+///         step.before(SpatialIndexSystems::Bounds),
+///         read.after(SpatialIndexSystems::Queries),
+///     ),
+/// );
+/// app.world_mut().spawn((SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?), Mover));
+/// app.update();
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum SpatialIndexSystems {
     /// World boxes from transforms (feature `bevy`).
@@ -220,6 +253,32 @@ impl Plugin for SpatialIndexPlugin {
 }
 
 /// Registration of layers and joins on an [`App`].
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// #[derive(Component)]
+/// struct Wall;
+/// #[derive(Component)]
+/// struct Enemy;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default())
+///     .add_spatial_layer::<Wall>()
+///     .add_spatial_join::<Enemy, Enemy>(2.0, JoinMode::Euclidean);
+/// let wall = app
+///     .world_mut()
+///     .spawn((SpatialBounds(Aabb::new(Vec3::new(-5.0, 0.0, -3.0), Vec3::new(5.0, 3.0, -2.0))?), Wall))
+///     .id();
+/// let ray = Ray::new(Vec3::new(0.0, 1.0, 0.0), Vec3::NEG_Z, 50.0)?;
+/// let eye = app.world_mut().spawn(RayCaster::<Wall>::for_layer(ray, RayMode::First)).id();
+/// app.update();
+/// let hits = app.world().get::<RayCasterHits<Wall>>(eye).unwrap();
+/// assert_eq!(hits.first().map(|h| h.key), Some(wall));
+/// # Ok::<(), SpatialError>(())
+/// ```
 pub trait SpatialAppExt {
     /// Keeps a separate index of the entities marked `L` (with
     /// [`SpatialBounds`]), readable as `Res<SpatialIndex<L>>` and usable by

@@ -145,6 +145,26 @@ impl<L: Component> RayCaster<L> {
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
 /// `RayCaster<L>`, the answer goes too, so that it never names entities
 /// that no longer exist.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let target = app
+///     .world_mut()
+///     .spawn(SpatialBounds(Aabb::new(Vec3::new(4.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0))?))
+///     .id();
+/// let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0)?;
+/// let eye = app.world_mut().spawn(RayCaster::new(ray, RayMode::First)).id();
+/// app.update();
+/// let hits = app.world().get::<RayCasterHits>(eye).unwrap();
+/// let first = hits.first().unwrap();
+/// assert_eq!((first.key, first.t), (target, 4.0));
+/// assert_eq!(hits.point(&first), Some(Vec3::new(4.0, 0.0, 0.0)));
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Component))]
 #[derive(Component)]

@@ -20,6 +20,24 @@ use crate::geometry::Aabb;
 /// A transform that is not finite or that collapses an axis (zero scale)
 /// gives no world box: the entity leaves the index, is reported once and
 /// counted, until its transform is usable again.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+/// use bevy_transform::prelude::*;
+///
+/// let mut app = App::new();
+/// app.add_plugins((TransformPlugin, SpatialIndexPlugin::default()));
+/// let local = Aabb::new(Vec3::splat(-0.5), Vec3::splat(0.5))?;
+/// let truck = app
+///     .world_mut()
+///     .spawn((LocalBounds(local), Transform::from_xyz(10.0, 0.0, 0.0)))
+///     .id();
+/// app.update();
+/// let index = app.world().resource::<SpatialIndex>();
+/// assert!(index.get(truck).unwrap().contains_point(Vec3::new(10.4, 0.0, 0.0)));
+/// # Ok::<(), SpatialError>(())
+/// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, PartialEq)]

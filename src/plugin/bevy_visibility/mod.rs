@@ -123,6 +123,18 @@ impl Default for BevyVisibilitySettings {
 /// The plugin's system set in `PostUpdate`: the renderables' index follows
 /// their transforms and boxes; it runs after transform propagation and
 /// Bevy's bounds, before `VisibilitySystems::CheckVisibility`.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_ecs::prelude::*;
+/// use bevy_rtree::plugin::{Renderable, RenderableSyncSystems, SpatialIndex};
+///
+/// // A system that reads the renderables' index once it is current.
+/// fn count_renderables(index: Res<SpatialIndex<Renderable>>) {
+///     println!("{} renderables indexed", index.len());
+/// }
+/// App::new().add_systems(PostUpdate, count_renderables.after(RenderableSyncSystems));
+/// ```
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct RenderableSyncSystems;
 

@@ -36,8 +36,45 @@ pub(super) struct Resync(Vec<Entity>);
 /// moves no entity between tables): a move then finds its entry without
 /// looking the entity up. A stale or foreign handle is refused by the
 /// index and costs only that look-up.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_camera::primitives::Aabb;
+/// use bevy_camera::visibility::{InheritedVisibility, ViewVisibility};
+/// use bevy_rtree::plugin::{
+///     BevyVisibilityPlugin, Renderable, RenderableHandle, SpatialIndex, SpatialIndexPlugin,
+/// };
+/// use bevy_transform::prelude::*;
+/// use glam::Vec3;
+///
+/// let mut app = App::new();
+/// app.add_plugins((TransformPlugin, SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+/// let mesh = app
+///     .world_mut()
+///     .spawn((
+///         Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+///         Transform::default(),
+///         InheritedVisibility::VISIBLE,
+///         ViewVisibility::default(),
+///     ))
+///     .id();
+/// app.update();
+/// // Bevy's `Aabb` brought the handle along; the first sync filled it.
+/// let handle = app.world().get::<RenderableHandle>(mesh).unwrap();
+/// let index = app.world().resource::<SpatialIndex<Renderable>>();
+/// let (entity, _) = index.tree().get(handle.id().unwrap()).unwrap();
+/// assert_eq!(entity, mesh);
+/// ```
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct RenderableHandle(Option<ProxyId>);
+
+impl RenderableHandle {
+    /// The entity's handle in `SpatialIndex<Renderable>`'s tree, once the
+    /// plugin has indexed it.
+    pub fn id(self) -> Option<ProxyId> {
+        self.0
+    }
+}
 
 /// The world box of a Bevy `Aabb` under a transform: the box around the
 /// oriented box Bevy's tests see, rounded outward ([contract S1](crate::contract)). An
