@@ -4,9 +4,9 @@
 //! the meantime that the new structure has not absorbed are applied to it.
 //!
 //! The new structure is partitioned from a snapshot of the entries' boxes
-//! (the costly part: the median cuts of the k-d tiling), but its leaves
-//! take each entry's box as it is when the leaf is filled, with the
-//! enlarged box the tree gives it then. Once an entry sits in a new leaf, a move inside that
+//! (the costly part: the median cuts of the k-d tiling); its leaves take
+//! the snapshot's boxes, or for an entry that moved since, its box as it
+//! is when the leaf is filled. Once an entry sits in a new leaf, a move inside that
 //! enlarged box is mirrored there at once (one lane write); any other
 //! change (a move beyond it, an insert, a removal) marks the entry, and the
 //! swap detaches and reinserts the marked entries only. Handles are slot
@@ -39,6 +39,9 @@ pub(super) struct RebuildJob<const W: usize> {
     /// Slots changed in a way the new structure has not absorbed, each once.
     marked: Vec<u32>,
     is_marked: Vec<bool>,
+    /// Per slot: moved before its new leaf was filled (the leaf then reads
+    /// its box from the tree; the others take the snapshot's, in order).
+    moved_early: Vec<bool>,
     /// What remains to do.
     phase: Phase,
 }
@@ -70,11 +73,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Starts rebuilding the tree's structure beside the current one, to
     /// be advanced by [`RTree::step_rebuild`] a little at a time (a rebuild
     /// already under way goes on). While it runs the tree answers and
-    /// changes as usual; when it completes it is swapped in, tiled as
-    /// [`RTree::rebuild`] tiles it (each entry keeps the enlarged box the
-    /// tree gave it, with the stretch of its motion, where `rebuild` starts
-    /// every one afresh). Handles stay valid and answers never change,
-    /// before, during and after the swap.
+    /// changes as usual; when it completes it is swapped in, as fresh as
+    /// [`RTree::rebuild`] makes it (except that an entry that moved while
+    /// it ran keeps the enlarged box the tree gave it, with the stretch of
+    /// its motion). Handles stay valid and answers never change, before,
+    /// during and after the swap.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -105,22 +108,24 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if self.rebuild_job.is_some() {
             return;
         }
+        // The snapshot, read leaf by leaf in the order of the node pool (a
+        // sequential scan, where reading slot by slot would jump through
+        // memory once per entry), with fresh enlarged boxes.
         let settings = self.settings;
-        let entries: Vec<Entry> = self
-            .proxies
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.is_live())
-            .map(|(i, p)| {
-                let exact = self.nodes[p.leaf as usize].lane_box(p.lane as usize);
-                let fat = settings.fatten(&exact, glam::Vec3::ZERO);
-                Entry {
+        let mut entries: Vec<Entry> = Vec::with_capacity(self.len);
+        for node in &self.nodes {
+            if !node.is_leaf() || node.level != 0 {
+                continue;
+            }
+            for lane in 0..node.len() {
+                let exact = node.lane_box(lane);
+                entries.push(Entry {
                     lane_box: exact,
-                    bound: fat,
-                    child: i as u32,
-                }
-            })
-            .collect();
+                    bound: settings.fatten(&exact, glam::Vec3::ZERO),
+                    child: node.child[lane],
+                });
+            }
+        }
         let slots = self.proxies.len();
         self.rebuild_job = Some(Box::new(RebuildJob {
             nodes: Vec::new(),
@@ -129,6 +134,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             leaf_bounds: Vec::new(),
             marked: Vec::new(),
             is_marked: vec![false; slots],
+            moved_early: vec![false; slots],
             phase: Self::partition_phase(0, entries),
         }));
     }
@@ -301,7 +307,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                         marks,
                         group,
                         lone,
-                        &job.snapshot_stamps,
+                        (&job.snapshot_stamps, &job.moved_early),
                     );
                     if let Some((index, bound)) = filled {
                         job.leaf_bounds.resize(index as usize + 1, Aabb::INVERTED);
@@ -342,9 +348,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Fills a new leaf with the entries of a group that still hold the
-    /// entry the snapshot saw, each with its box as it is now and the
-    /// enlarged box the tree gives it now (with the stretch of its recent
-    /// motion); returns the leaf and its bound. An entry that jumped since
+    /// entry the snapshot saw: an entry that has not moved since with the
+    /// snapshot's box and a fresh enlarged box, one that has with its box
+    /// as it is now and the enlarged box the tree gives it now (with the
+    /// stretch of its motion); returns the leaf and its bound. An entry that jumped since
     /// the snapshot (farther than [`TreeSettings::jump_limit`] box sizes)
     /// would stretch a leaf tiled for where it was: it is marked for
     /// reinsertion at the swap instead, and so are the entries of a group
@@ -359,10 +366,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         (marked, is_marked): (&mut Vec<u32>, &mut Vec<bool>),
         group: &[Entry],
         lone: bool,
-        snapshot_stamps: &[Stamp],
+        (snapshot_stamps, moved_early): (&[Stamp], &[bool]),
     ) -> Option<(u32, Aabb)> {
         let mut leaf = Node::empty(0, NIL);
-        let mut kept: smallvec::SmallVec<[(u32, Aabb); 16]> = smallvec::SmallVec::new();
+        let mut kept: smallvec::SmallVec<[(u32, Aabb, Aabb); 16]> = smallvec::SmallVec::new();
         let mut mark = |slot: u32| {
             if !is_marked[slot as usize] {
                 is_marked[slot as usize] = true;
@@ -371,11 +378,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         };
         for entry in group {
             let slot = entry.child as usize;
-            let proxy = &self.proxies[slot];
-            if !proxy.is_live() || self.stamps[slot] != snapshot_stamps[slot] {
+            if self.stamps[slot] != snapshot_stamps[slot] {
                 // Removed meanwhile (and marked then).
                 continue;
             }
+            if !moved_early[slot] {
+                kept.push((entry.child, entry.lane_box, entry.bound));
+                continue;
+            }
+            let proxy = &self.proxies[slot];
             let exact = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
             let then = entry.lane_box;
             let size = then.extent().max_element().max(self.settings.margin);
@@ -384,16 +395,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 mark(entry.child);
                 continue;
             }
-            kept.push((entry.child, exact));
+            kept.push((entry.child, exact, proxy.fat));
         }
         if kept.is_empty() || (kept.len() < Self::MIN_FILL && !lone) {
-            kept.iter().for_each(|&(slot, _)| mark(slot));
+            kept.iter().for_each(|&(slot, ..)| mark(slot));
             return None;
         }
         let index = nodes.len() as u32;
         let mut bound = Aabb::INVERTED;
-        for (lane, &(slot, exact)) in kept.iter().enumerate() {
-            let fat = self.proxies[slot as usize].fat;
+        for (lane, &(slot, exact, fat)) in kept.iter().enumerate() {
             leaf.set_lane_box(lane, &exact);
             leaf.child[lane] = slot;
             placed[slot as usize] = (index, lane as u32, fat);
@@ -421,6 +431,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             if placed.0 == NIL {
                 // Not in a new leaf yet: its leaf will take the box it has
                 // then.
+                job.moved_early[s] = true;
                 return;
             }
             if job.leaf_bounds[placed.0 as usize].contains(fat) {
