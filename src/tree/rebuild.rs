@@ -170,11 +170,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// (`cargo bench --bench decay`, 2,000 frames): the maintained tree
     /// visits 6 to 74 % more nodes than a fresh bulk load of the same
     /// entries, depending on how things move, and the same entries retiled
-    /// 0 to 7 % more. With this at 0.5 ms a frame, steps come back to 9 %
-    /// more (maintenance 0.53 → 0.80 ms a frame); where 1 % of the
+    /// 0 to 7 % more. With this at 0.5 ms a frame, steps come back to 5 %
+    /// more (maintenance 0.53 → 1.67 ms a frame); where 1 % of the
     /// entries teleport or respawn every frame, a rebuild that takes tens
     /// of frames meets a quarter of them changed at the swap, and the tree
-    /// stays 30–40 % above fresh. The plugin does not call it by default.
+    /// stays 30–50 % above fresh. The plugin does not call it by default.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
