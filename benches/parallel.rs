@@ -26,6 +26,10 @@
 //! - `parallel/cross_join`: enemies x barrels within 5 m, Euclidean;
 //! - `parallel/self_join`: all touching or overlapping pairs (d = 0).
 //!
+//! With `BEVY_RTREE_THREADS=n` the pool has exactly `n` threads; with
+//! `BEVY_RTREE_PAIRED_ONLY=1` only the paired blocks below run (what
+//! `scripts/scaling.sh` does for 1 to 16 threads).
+//!
 //! After the groups, `paired_speed_ups` times the single and the parallel
 //! call again in alternating short blocks (`common/paired.rs`) and prints
 //! the speed-up's median and range; the table is also written to
@@ -272,8 +276,13 @@ fn bench_joins(cr: &mut Criterion, trees: &Trees) {
 }
 
 fn bench_all(cr: &mut Criterion) {
+    let threads = pool_threads();
     let (trees, inputs) = setup();
     check(&trees, &inputs, &mut ParallelWorkspace::default());
+    if std::env::var_os("BEVY_RTREE_PAIRED_ONLY").is_some() {
+        paired_speed_ups(&trees, &inputs, threads);
+        return;
+    }
     bench_rays(cr, &trees, "parallel/rays_incoherent", &inputs.incoherent);
     let many = &inputs.incoherent_4000;
     bench_rays(cr, &trees, "parallel/rays_incoherent_4000", many);
@@ -285,7 +294,21 @@ fn bench_all(cr: &mut Criterion) {
     bench_frustum(cr, &trees, "parallel/frustum", &inputs.frustums[..1]);
     bench_frustum(cr, &trees, "parallel/frustum_4_views", &inputs.frustums);
     bench_joins(cr, &trees);
-    paired_speed_ups(&trees, &inputs);
+    paired_speed_ups(&trees, &inputs, threads);
+}
+
+/// The task pool's size: `BEVY_RTREE_THREADS` threads if set (so that a
+/// scaling run means the same on any machine: `scripts/scaling.sh`), else
+/// one per core.
+fn pool_threads() -> usize {
+    let wanted = std::env::var("BEVY_RTREE_THREADS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok());
+    let pool = bevy_tasks::ComputeTaskPool::get_or_init(|| match wanted {
+        Some(n) => bevy_tasks::TaskPoolBuilder::new().num_threads(n).build(),
+        None => bevy_tasks::TaskPool::default(),
+    });
+    pool.thread_num()
 }
 
 /// The speed-ups again, with the single and the parallel call timed in
@@ -293,7 +316,7 @@ fn bench_all(cr: &mut Criterion) {
 /// state of the shared machine; criterion times them seconds apart. Prints
 /// the median speed-up and its range over the rounds, and writes the table
 /// to `target/criterion/parallel_paired_speed_ups.md`.
-fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
+fn paired_speed_ups(trees: &Trees, inputs: &Inputs, threads: usize) {
     const ROUNDS: usize = 31;
     let mut rows = Vec::new();
     let mut ws = QueryWorkspace::default();
@@ -386,8 +409,8 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
 
     // The paired ratio is single ÷ parallel here: the speed-up.
     let mut table = format!(
-        "speed-up on the pool = one thread's time ÷ the `par_` call's, alternating blocks, \
-         {ROUNDS} rounds\n\n\
+        "speed-up on a pool of {threads} threads = one thread's time ÷ the `par_` call's, \
+         alternating blocks, {ROUNDS} rounds\n\n\
          | query | one thread (µs) | `par_` (µs) | speed-up, median | speed-up, range |\n\
          |---|---:|---:|---:|---:|\n"
     );
@@ -398,7 +421,9 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs) {
         );
     }
     eprintln!("\n{table}");
-    let path = std::path::Path::new("target/criterion/parallel_paired_speed_ups.md");
+    let path = std::env::var("BEVY_RTREE_OUT")
+        .unwrap_or_else(|_| "target/criterion/parallel_paired_speed_ups.md".to_string());
+    let path = std::path::Path::new(&path);
     if let Err(e) = std::fs::write(path, &table) {
         eprintln!("could not write {}: {e}", path.display());
     }

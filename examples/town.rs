@@ -5,7 +5,8 @@
 //! answers against brute force.
 //!
 //! Run with `cargo run --release --example town` (`-- --frames N`,
-//! `-- --count N` for a smaller scene).
+//! `-- --count N` for a smaller scene; with the features
+//! `parallel,multi_threaded`, `-- --threads N` sets the task pool's size).
 
 use std::time::{Duration, Instant};
 
@@ -190,8 +191,30 @@ fn arg(name: &str, default: usize) -> usize {
         .unwrap_or(default)
 }
 
+/// `--threads N` (feature `parallel`): the task pool the parallel queries
+/// and the multi-threaded executor share gets exactly `N` threads, so that
+/// a scaling run means the same on any machine.
+fn set_threads() {
+    let threads = arg("--threads", 0);
+    if threads == 0 {
+        return;
+    }
+    #[cfg(feature = "parallel")]
+    {
+        let pool = bevy_tasks::ComputeTaskPool::get_or_init(|| {
+            bevy_tasks::TaskPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+        });
+        println!("town: a task pool of {} threads", pool.thread_num());
+    }
+    #[cfg(not(feature = "parallel"))]
+    println!("town: --threads {threads} needs the feature `parallel`; one thread");
+}
+
 #[allow(dead_code)]
 fn main() {
+    set_threads();
     let frames = arg("--frames", 120).max(1);
     let count = arg("--count", TownScene::STANDARD_COUNT);
     let start = Instant::now();

@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# The scaling measurements: the parallel queries' paired speed-ups and the
+# plugin's `town` frame on 1, 2, 4, 8 and 16 threads, each run confined to
+# that many cores with `taskset` and given a task pool of exactly that
+# many threads.
+#
+#   scripts/scaling.sh build        release binaries into scaling-bin/
+#                                   (git-ignored; needs the Rust toolchain)
+#   scripts/scaling.sh run OUT      runs them for every thread count the
+#                                   machine has cores for (needs only the
+#                                   binaries), results in OUT/scaling.md
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+case "${1:-}" in
+build)
+    mkdir -p scaling-bin
+    # The bench binary: cargo prints where it put it.
+    bench=$(cargo bench --features parallel --bench parallel --no-run 2>&1 |
+        sed -n 's/.*Executable .*(\(.*\)).*/\1/p' | tail -1)
+    cp "$bench" scaling-bin/parallel
+    cargo build --release --example town --features parallel,multi_threaded
+    cp target/release/examples/town scaling-bin/town
+    ls -l scaling-bin
+    ;;
+run)
+    out=${2:?"usage: scripts/scaling.sh run OUT"}
+    mkdir -p "$out"
+    report="$out/scaling.md"
+    cores=$(nproc)
+    {
+        echo "# Scaling on $(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | xargs)"
+        echo
+    } >"$report"
+    for n in 1 2 4 8 16; do
+        if [ "$n" -gt "$cores" ]; then
+            break
+        fi
+        last=$((n - 1))
+        echo "## $n threads (taskset -c 0-$last)" >>"$report"
+        echo >>"$report"
+        BEVY_RTREE_THREADS=$n BEVY_RTREE_PAIRED_ONLY=1 BEVY_RTREE_OUT="$out/paired_$n.md" \
+            taskset -c "0-$last" scaling-bin/parallel --bench >"$out/parallel_$n.log" 2>&1 || true
+        cat "$out/paired_$n.md" >>"$report" 2>/dev/null || tail -5 "$out/parallel_$n.log" >>"$report"
+        echo >>"$report"
+        echo '`town` through the plugin, 120 frames:' >>"$report"
+        taskset -c "0-$last" scaling-bin/town --frames 120 --threads "$n" 2>&1 |
+            grep -E 'task pool|summary' >>"$report" || true
+        echo >>"$report"
+        rm -f "$out/paired_$n.md" "$out/parallel_$n.log"
+    done
+    cat "$report"
+    ;;
+*)
+    echo "usage: scripts/scaling.sh build | run OUT" >&2
+    exit 2
+    ;;
+esac
