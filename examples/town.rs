@@ -32,7 +32,13 @@ pub struct Town {
     pub entities: Vec<Entity>,
     pub camera: Entity,
     pub casters: Vec<Entity>,
+    /// Per scene index: whether it moves this frame.
+    moving: Vec<bool>,
 }
+
+/// An entity's index in the scene, which says where it moves.
+#[derive(Component, Clone, Copy)]
+pub struct SceneIndex(pub u32);
 
 /// When the plugin's work started this frame, and how long it took.
 #[derive(Resource, Default)]
@@ -65,7 +71,7 @@ pub fn build(count: usize, seed: u64) -> App {
         .iter()
         .enumerate()
         .map(|(i, aabb)| {
-            let mut entity = world.spawn(SpatialBounds(*aabb));
+            let mut entity = world.spawn((SpatialBounds(*aabb), SceneIndex(i as u32)));
             if TownScene::ENEMIES.contains(&i) {
                 entity.insert(Enemy);
             } else if TownScene::BARRELS.contains(&i) {
@@ -85,6 +91,7 @@ pub fn build(count: usize, seed: u64) -> App {
         })
         .collect();
     app.insert_resource(Town {
+        moving: vec![false; scene.len()],
         scene,
         entities,
         camera,
@@ -93,14 +100,23 @@ pub fn build(count: usize, seed: u64) -> App {
     app
 }
 
-/// A fresh 10 % of the entities take their step.
-fn move_entities(mut town: ResMut<Town>, mut bounds: Query<&mut SpatialBounds>) {
+/// A fresh 10 % of the entities take their step: as a game moves its
+/// entities, through a query over them (a box is written, and so marked
+/// changed, only where it moves).
+fn move_entities(mut town: ResMut<Town>, mut bounds: Query<(&SceneIndex, &mut SpatialBounds)>) {
     let town = &mut *town;
     town.scene.advance_frame();
     for &i in town.scene.moved() {
-        if let Ok(mut b) = bounds.get_mut(town.entities[i as usize]) {
-            b.0 = town.scene.boxes()[i as usize];
+        town.moving[i as usize] = true;
+    }
+    for (index, mut b) in &mut bounds {
+        let i = index.0 as usize;
+        if town.moving[i] {
+            b.0 = town.scene.boxes()[i];
         }
+    }
+    for &i in town.scene.moved() {
+        town.moving[i as usize] = false;
     }
 }
 
