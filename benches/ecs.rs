@@ -582,14 +582,14 @@ impl PluginTreeCalls {
         let enemies = world.resource::<SpatialIndex<Enemy>>().tree();
         let barrels = world.resource::<SpatialIndex<Barrel>>().tree();
         let t0 = Instant::now();
-        self.visible[0].clear();
+        self.visible.iter_mut().for_each(Vec::clear);
         all.visible_into(
             std::slice::from_ref(&frustum),
             CullMode::Conservative,
             &mut self.ws,
             &mut self.visible,
         );
-        self.visible[0].sort_unstable();
+        self.visible.iter_mut().for_each(|v| v.sort_unstable());
         let t1 = Instant::now();
         all.cast_rays(&self.rays, RayMode::First, &mut self.ws, &mut self.hits);
         let t2 = Instant::now();
