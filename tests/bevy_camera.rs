@@ -90,3 +90,55 @@ fn a_bevy_camera_culls_like_bevy_and_like_the_oracle() {
         *world.get_mut::<GlobalTransform>(camera).unwrap() = GlobalTransform::from(transform);
     }
 }
+
+#[derive(bevy_ecs::component::Component)]
+struct Enemy;
+
+/// A Bevy camera that follows for a layer: its `CullingCamera<Enemy>` and
+/// `VisibleEntityList<Enemy>` list the enemies it sees and nothing else;
+/// the same camera can follow for the main layer too.
+#[test]
+fn a_bevy_camera_follows_for_a_layer() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default())
+        .add_spatial_layer::<Enemy>();
+    let ahead = |x: f32| Aabb::from_center_half_extents(Vec3::new(x, 0.0, -20.0), Vec3::ONE);
+    let enemy = app
+        .world_mut()
+        .spawn((SpatialBounds(ahead(0.0).unwrap()), Enemy))
+        .id();
+    let crate_box = app
+        .world_mut()
+        .spawn(SpatialBounds(ahead(3.0).unwrap()))
+        .id();
+    let transform = Transform::from_xyz(0.0, 0.0, 0.0);
+    let camera = app
+        .world_mut()
+        .spawn((
+            bevy_frustum(&transform),
+            GlobalTransform::from(transform),
+            FollowBevyFrustum::<Enemy>::for_layer().with_mode(CullMode::Exact),
+            FollowBevyFrustum::default(),
+        ))
+        .id();
+    app.update();
+    let world = app.world();
+    let enemies = world.get::<VisibleEntityList<Enemy>>(camera).unwrap();
+    assert_eq!(enemies.entities(), &[enemy]);
+    let layer_camera = world.get::<CullingCamera<Enemy>>(camera).unwrap();
+    assert_eq!(layer_camera.mode, CullMode::Exact);
+    let all = world.get::<VisibleEntityList>(camera).unwrap();
+    let mut both = vec![enemy, crate_box];
+    both.sort_unstable();
+    assert_eq!(all.entities(), both.as_slice());
+}
+
+/// Following for a layer nobody registered is a clear error.
+#[test]
+#[should_panic(expected = "not registered")]
+fn following_for_an_unregistered_layer_is_a_clear_error() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    app.world_mut()
+        .spawn(FollowBevyFrustum::<Enemy>::for_layer());
+}

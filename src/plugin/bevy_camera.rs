@@ -11,7 +11,9 @@ use bevy_ecs::schedule::InternedScheduleLabel;
 use bevy_transform::prelude::GlobalTransform;
 use glam::Vec3;
 
-use super::{CullingCamera, SpatialIndexSystems};
+use std::marker::PhantomData;
+
+use super::{CullingCamera, SpatialBounds, SpatialIndexSystems};
 use crate::geometry::Frustum;
 use crate::query::CullMode;
 
@@ -48,11 +50,62 @@ use crate::query::CullMode;
 /// # Ok::<(), SpatialError>(())
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct FollowBevyFrustum {
-    /// The cull mode of the [`CullingCamera`].
+#[cfg_attr(feature = "reflect", reflect(Component))]
+#[derive(Component)]
+#[component(on_add = super::layer_must_be_registered::<L>)]
+pub struct FollowBevyFrustum<L: Component = SpatialBounds> {
+    /// The cull mode of the [`CullingCamera<L>`].
     pub mode: CullMode,
+    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    _layer: PhantomData<fn() -> L>,
+}
+
+impl_layer_generic_traits!(FollowBevyFrustum<L> { mode });
+
+/// The main layer's (the only `Default`, so that `FollowBevyFrustum::default()`
+/// needs no annotation; a layer's is [`FollowBevyFrustum::for_layer`]).
+impl Default for FollowBevyFrustum {
+    fn default() -> Self {
+        FollowBevyFrustum::for_layer()
+    }
+}
+
+impl<L: Component> PartialEq for FollowBevyFrustum<L> {
+    fn eq(&self, other: &Self) -> bool {
+        self.mode == other.mode
+    }
+}
+
+impl<L: Component> FollowBevyFrustum<L> {
+    /// Follows the Bevy camera with a [`CullingCamera<L>`] over layer `L`
+    /// (registered with `add_spatial_layer::<L>()`), conservative.
+    ///
+    /// ```
+    /// use bevy_app::prelude::*;
+    /// use bevy_camera::Camera3d;
+    /// use bevy_ecs::prelude::*;
+    /// use bevy_rtree::prelude::*;
+    ///
+    /// #[derive(Component)]
+    /// struct Enemy;
+    ///
+    /// let mut app = App::new();
+    /// app.add_plugins(SpatialIndexPlugin::default()).add_spatial_layer::<Enemy>();
+    /// // This camera's `VisibleEntityList<Enemy>` lists the enemies it sees.
+    /// app.world_mut().spawn((Camera3d::default(), FollowBevyFrustum::<Enemy>::for_layer()));
+    /// ```
+    pub fn for_layer() -> Self {
+        FollowBevyFrustum {
+            mode: CullMode::Conservative,
+            _layer: PhantomData,
+        }
+    }
+
+    /// The same camera with cull mode `mode`.
+    pub fn with_mode(mut self, mode: CullMode) -> Self {
+        self.mode = mode;
+        self
+    }
 }
 
 pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
@@ -60,36 +113,41 @@ pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
     app.configure_sets(
         schedule,
         SpatialIndexSystems::Bounds.after(VisibilitySystems::UpdateFrusta),
-    )
-    .add_systems(
-        schedule,
-        follow_bevy_frustums
-            .in_set(SpatialIndexSystems::Bounds)
-            .run_if(any_with_component::<FollowBevyFrustum>),
     );
 }
 
-/// Our frustum from Bevy's world-space half-spaces (`n·p + d > 0` inside,
-/// the same convention), re-based on the eye.
+/// The system that keeps layer `L`'s cameras on their Bevy frustums.
+pub(crate) fn add_follow_system<L: Component>(
+    app: &mut bevy_app::App,
+    schedule: InternedScheduleLabel,
+) {
+    app.add_systems(
+        schedule,
+        follow_bevy_frustums::<L>
+            .in_set(SpatialIndexSystems::Bounds)
+            .run_if(any_with_component::<FollowBevyFrustum<L>>),
+    );
+}
+
 pub(crate) fn convert(frustum: &BevyFrustum, eye: Vec3) -> Option<Frustum> {
     Frustum::from_bevy(frustum, eye).ok()
 }
 
 #[allow(clippy::type_complexity)]
-fn follow_bevy_frustums(
+fn follow_bevy_frustums<L: Component>(
     mut commands: Commands,
     mut cameras: Query<
         (
             Entity,
             &BevyFrustum,
             &GlobalTransform,
-            &FollowBevyFrustum,
-            Option<&mut CullingCamera>,
+            &FollowBevyFrustum<L>,
+            Option<&mut CullingCamera<L>>,
         ),
         Or<(
             Changed<BevyFrustum>,
-            Changed<FollowBevyFrustum>,
-            Without<CullingCamera>,
+            Changed<FollowBevyFrustum<L>>,
+            Without<CullingCamera<L>>,
         )>,
     >,
     mut warned: Local<bevy_ecs::entity::EntityHashSet>,
@@ -111,7 +169,7 @@ fn follow_bevy_frustums(
             None => {
                 commands
                     .entity(entity)
-                    .insert(CullingCamera::new(converted).with_mode(follow.mode));
+                    .insert(CullingCamera::<L>::for_layer(converted).with_mode(follow.mode));
             }
         }
     }

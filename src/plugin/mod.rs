@@ -409,6 +409,8 @@ fn register_layer_queries<L: Component>(app: &mut App, config: &SpatialIndexConf
     )
     .add_observer(drop_answer::<CullingCamera<L>, VisibleEntityList<L>>)
     .add_observer(drop_answer::<RayCaster<L>, RayCasterHits<L>>);
+    #[cfg(feature = "bevy_camera")]
+    bevy_camera::add_follow_system::<L>(app, config.schedule);
 }
 
 /// Observer: an entity that loses its camera or caster `Q` loses its
