@@ -35,7 +35,38 @@ use crate::geometry::Aabb;
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[require(SpatialHandle)]
 pub struct SpatialBounds(pub Aabb);
+
+/// The entity's handle in the main index ([`SpatialIndex`](super::SpatialIndex)),
+/// kept on the entity by the plugin (every entity with [`SpatialBounds`]
+/// has one, as a required component): a changed box then finds its entry
+/// without looking the entity up. A stale handle (the entity left and came
+/// back) is refused by the index and costs only that look-up.
+///
+/// ```
+/// use bevy_app::prelude::*;
+/// use bevy_rtree::prelude::*;
+/// use bevy_rtree::plugin::SpatialHandle;
+///
+/// let mut app = App::new();
+/// app.add_plugins(SpatialIndexPlugin::default());
+/// let crate_box = app.world_mut().spawn(SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?)).id();
+/// app.update();
+/// let id = app.world().get::<SpatialHandle>(crate_box).unwrap().id().unwrap();
+/// let index = app.world().resource::<SpatialIndex>();
+/// assert_eq!(index.tree().get(id)?.0, crate_box);
+/// # Ok::<(), SpatialError>(())
+/// ```
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SpatialHandle(pub(crate) Option<crate::tree::ProxyId>);
+
+impl SpatialHandle {
+    /// The entity's handle in the main index's tree, once indexed.
+    pub fn id(self) -> Option<crate::tree::ProxyId> {
+        self.0
+    }
+}
 
 impl Default for SpatialBounds {
     /// An inverted box: not indexed until a valid box is set.

@@ -6,7 +6,7 @@ use std::marker::PhantomData;
 use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
 use bevy_ecs::prelude::*;
 
-use super::bounds::{NoSpatialIndex, SpatialBounds};
+use super::bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
 use super::diagnostics::DiagnosticsSink;
 use crate::geometry::Aabb;
 use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
@@ -185,12 +185,21 @@ pub(crate) fn sync_layer<L: Component>(
 #[allow(clippy::type_complexity)]
 pub(crate) fn sync_main(
     mut index: ResMut<SpatialIndex>,
-    changed: Query<(Entity, &SpatialBounds), (Without<NoSpatialIndex>, Changed<SpatialBounds>)>,
+    mut changed: Query<
+        (Entity, &SpatialBounds, &mut SpatialHandle),
+        (Without<NoSpatialIndex>, Changed<SpatialBounds>),
+    >,
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    let changed = changed.iter().map(|(e, b)| (e, b.0, None));
-    apply_changes(&mut index, changed, &mut scratch, &sink, true);
+    let boxes = changed.iter().map(|(e, b, h)| (e, b.0, h.0));
+    apply_changes(&mut index, boxes, &mut scratch, &sink, true);
+    // The handles of the entities just inserted, kept on them.
+    for &(entity, id) in &scratch.inserted {
+        if let Ok((.., mut handle)) = changed.get_mut(entity) {
+            handle.0 = Some(id);
+        }
+    }
 }
 
 /// A sync system's buffers, kept from frame to frame so syncing does not

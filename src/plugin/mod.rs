@@ -83,7 +83,7 @@ pub use bevy_visibility::{
     BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, RenderableHandle,
     RenderableSyncSystems,
 };
-pub use bounds::{NoSpatialIndex, SpatialBounds};
+pub use bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
 pub use culling::{CullingCamera, VisibleEntityList};
 pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
 pub use filter::SpatialQueryFilter;
