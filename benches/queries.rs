@@ -1146,6 +1146,7 @@ fn bench_all(cr: &mut Criterion) {
     bench_cross_join(cr, &contenders);
     bench_self_join(cr, &contenders);
     paired_ratios(&contenders);
+    cold_ratios(&contenders);
 }
 
 /// Where the machine drifts during a run, criterion's medians of two
@@ -1304,3 +1305,111 @@ criterion_group! {
     targets = bench_all
 }
 criterion_main!(benches);
+
+/// The paired ratios again with cold caches, as a game frame meets the
+/// tree: before each timed call (one view, one batch of rays, one join) a
+/// buffer several times the last-level cache is streamed through
+/// (`common::paired::paired_ratio_cold`). Printed and written to
+/// `target/criterion/queries_cold_ratios.md`, beside each contender's warm
+/// time per call from the same inputs.
+fn cold_ratios(c: &Contenders) {
+    use common::paired::paired_ratio_cold;
+    const ROUNDS: usize = 31;
+    let mut rows: Vec<(&str, common::paired::PairedRatio)> = Vec::new();
+    let mut ws = QueryWorkspace::default();
+    let (mut out, mut list) = (vec![Vec::new()], Vec::new());
+    let views = &c.frustums;
+    let ratio = paired_ratio_cold(
+        ROUNDS,
+        |i| {
+            out[0].clear();
+            let frustum = std::slice::from_ref(&views[i % views.len()]);
+            c.bevy
+                .tree
+                .visible_into(frustum, CullMode::Conservative, &mut ws, &mut out);
+            out[0].len()
+        },
+        |i| {
+            list.clear();
+            let planes = Planes::new(&views[i % views.len()]);
+            parry_visible_into(&c.parry.bvh, &planes, &mut list);
+            list.len()
+        },
+    );
+    rows.push(("frustum cull", ratio));
+    for (name, batches) in [
+        ("1,000 incoherent rays", &c.incoherent),
+        ("1,000 coherent rays, clear eye", &c.coherent_clear_eye),
+    ] {
+        let (mut out, mut hits) = (RayResults::default(), Vec::new());
+        let ratio = paired_ratio_cold(
+            ROUNDS,
+            |i| {
+                let rays = &batches[i % batches.len()];
+                c.bevy
+                    .tree
+                    .cast_rays(rays, RayMode::First, &mut ws, &mut out);
+                out.len()
+            },
+            |i| {
+                hits.clear();
+                let rays = &batches[i % batches.len()];
+                let first = rays
+                    .iter()
+                    .map(|ray| parry_first_hit(&c.parry.bvh, &c.boxes, ray));
+                hits.extend(first);
+                hits.len()
+            },
+        );
+        rows.push((name, ratio));
+    }
+    let d = SELF_JOIN_DISTANCE;
+    let (mut pairs, mut peer_pairs) = (Vec::new(), Vec::new());
+    let mut peer_ws = BvhWorkspace::default();
+    let ratio = paired_ratio_cold(
+        ROUNDS,
+        |_| {
+            pairs.clear();
+            let tree = &c.bevy.tree;
+            let result = tree.self_join_into(d, JoinMode::Euclidean, &mut ws, &mut pairs);
+            result.expect("valid distance");
+            pairs.len()
+        },
+        |_| {
+            peer_pairs.clear();
+            parry_self_join(&c.parry.bvh, &mut peer_ws, &c.boxes, d, &mut peer_pairs);
+            peer_pairs.len()
+        },
+    );
+    rows.push(("self join", ratio));
+
+    let mut table = format!(
+        "cold caches (a 128 MB buffer streamed through before each call): bevy_rtree time \
+         ÷ parry3d time, {ROUNDS} alternating rounds of one call each\n\n\
+         | query | bevy_rtree cold (µs) | parry3d cold (µs) | ratio, median | ratio, range |\n\
+         |---|---:|---:|---:|---:|\n"
+    );
+    for (name, r) in &rows {
+        table += &format!(
+            "| {name} | {:.1} | {:.1} | {:.3} | {:.3}–{:.3} |\n",
+            r.a_us, r.b_us, r.median, r.low, r.high
+        );
+    }
+    let n = c.bevy.tree.len().max(1);
+    let ours = c.bevy.tree.memory();
+    table += &format!(
+        "\nmemory per entry: bevy_rtree {} B (nodes {}, entry records {}, keys {}, handles {}); \
+         parry3d {} B (`Bvh::total_memory_size`); rstar not reported\n",
+        ours.total() / n,
+        ours.nodes / n,
+        ours.entries / n,
+        ours.keys / n,
+        ours.handles / n,
+        c.parry.bvh.total_memory_size() / n,
+    );
+    eprintln!("\n{table}");
+    let path = std::path::Path::new("target/criterion/queries_cold_ratios.md");
+    if let Err(e) = std::fs::write(path, &table) {
+        eprintln!("could not write {}: {e}", path.display());
+    }
+}

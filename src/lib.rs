@@ -226,8 +226,8 @@ pub use query::{
     CullMode, JoinMode, Neighbor, QueryWorkspace, RayHit, RayMode, RayResults, oracle,
 };
 pub use tree::{
-    InvariantViolation, MaintenanceStats, MoveKind, ProxyId, QueryStats, RTree, SplitStrategy,
-    TreeSettings,
+    InvariantViolation, MaintenanceStats, MemoryUse, MoveKind, ProxyId, QueryStats, RTree,
+    SplitStrategy, TreeSettings,
 };
 
 // The README's code blocks compile and run as doc tests (with the feature

@@ -94,3 +94,66 @@ fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     values[values.len() / 2]
 }
+
+/// Bytes streamed through to evict the caches before a cold call: several
+/// times any last-level cache of the machines the benches run on.
+const EVICT_BYTES: usize = 128 << 20;
+
+/// Evicts the caches as a frame's other work does between two calls of a
+/// query: writes and reads back a buffer several times the last-level
+/// cache, one word per cache line.
+pub fn evict_caches(buffer: &mut Vec<u64>) {
+    if buffer.is_empty() {
+        buffer.resize(EVICT_BYTES / 8, 0);
+    }
+    for line in buffer.chunks_mut(8) {
+        line[0] = line[0].wrapping_add(1);
+    }
+    let sum: u64 = buffer.chunks(8).map(|line| line[0]).sum();
+    black_box(sum);
+}
+
+/// [`paired_ratio`] with cold caches: each round times one call of `a` and
+/// one of `b` on input `round`, each right after [`evict_caches`], in an
+/// order that alternates; returns the ratios `a ÷ b` of the two calls.
+pub fn paired_ratio_cold<A, B>(
+    rounds: usize,
+    mut a: impl FnMut(usize) -> A,
+    mut b: impl FnMut(usize) -> B,
+) -> PairedRatio {
+    let mut buffer = Vec::new();
+    let mut timed = |f: &mut dyn FnMut(usize), input: usize| {
+        evict_caches(&mut buffer);
+        let start = Instant::now();
+        f(input);
+        start.elapsed().as_secs_f64() * 1e6
+    };
+    let mut a = |i: usize| {
+        black_box(a(i));
+    };
+    let mut b = |i: usize| {
+        black_box(b(i));
+    };
+    let (mut ratios, mut a_us, mut b_us) = (Vec::new(), Vec::new(), Vec::new());
+    for round in 0..rounds {
+        let (ta, tb) = if round % 2 == 0 {
+            let ta = timed(&mut a, round);
+            (ta, timed(&mut b, round))
+        } else {
+            let tb = timed(&mut b, round);
+            (timed(&mut a, round), tb)
+        };
+        ratios.push(ta / tb);
+        a_us.push(ta);
+        b_us.push(tb);
+    }
+    let low = ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let high = ratios.iter().copied().fold(0.0, f64::max);
+    PairedRatio {
+        median: median(&mut ratios),
+        low,
+        high,
+        a_us: median(&mut a_us),
+        b_us: median(&mut b_us),
+    }
+}

@@ -227,6 +227,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         for (lane, &lane_mask) in lane_masks.iter().enumerate() {
             if lane_mask != 0 {
+                // Loads of the visible children overlap instead of
+                // stalling one after another when the tree is not in cache.
+                self.prefetch_node(node.child[lane]);
                 ws.cull_stack.push((node.child[lane], lane_mask));
             }
         }
@@ -312,6 +315,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let node = self.node(index);
             ws.stats.nodes_visited += 1;
             if !node.is_leaf() {
+                // A subtree inside every view is read whole: start loading
+                // its nodes while the ones before them are emitted.
+                for &child in &node.child[..node.len()] {
+                    self.prefetch_node(child);
+                }
                 stack.extend_from_slice(&node.child[..node.len()]);
                 continue;
             }

@@ -32,7 +32,7 @@ mod validate;
 pub use handle::ProxyId;
 pub use settings::TreeSettings;
 pub use split::SplitStrategy;
-pub use stats::{MaintenanceStats, QueryStats};
+pub use stats::{MaintenanceStats, MemoryUse, QueryStats};
 pub use update::MoveKind;
 pub use validate::InvariantViolation;
 
@@ -163,6 +163,38 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             rebuild_job: None,
             wear: 0,
         })
+    }
+
+    /// The memory the tree holds, by part (allocated capacity, so a tree
+    /// that shrank keeps what it grew to).
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// for i in 0..1_000u32 {
+    ///     tree.insert(i, Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 1.0))?)?;
+    /// }
+    /// let memory = tree.memory();
+    /// assert!(memory.total() / tree.len() < 200, "{memory:?}");
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn memory(&self) -> MemoryUse {
+        use std::mem::size_of;
+        fn bytes<T>(v: &Vec<T>) -> usize {
+            v.capacity() * size_of::<T>()
+        }
+        MemoryUse {
+            nodes: bytes(&self.nodes)
+                + bytes(&self.churn)
+                + bytes(&self.held_bounds)
+                + bytes(&self.free_nodes)
+                + self.dirty.memory(),
+            entries: bytes(&self.proxies) + bytes(&self.free_proxies),
+            keys: bytes(&self.keys),
+            handles: bytes(&self.stamps),
+        }
     }
 
     /// Number of entries.

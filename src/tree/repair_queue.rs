@@ -24,6 +24,11 @@ impl RepairQueue {
         self.queued.len()
     }
 
+    /// The bytes it holds.
+    pub fn memory(&self) -> usize {
+        (self.queued.capacity() + self.place.capacity()) * std::mem::size_of::<u32>()
+    }
+
     /// Forgets every node.
     pub fn clear(&mut self) {
         self.queued.clear();

@@ -39,3 +39,25 @@ pub struct MaintenanceStats {
     /// Rebuilds swapped in by [`RTree::step_rebuild`](super::RTree::step_rebuild).
     pub rebuilds: u64,
 }
+
+/// The memory a tree holds, in bytes (allocated capacity), by part:
+/// [`RTree::memory`](super::RTree::memory).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MemoryUse {
+    /// The node pool (boxes of every lane, children, order) and the
+    /// per-node side tables (churn, held bounds, free list, repair queue).
+    pub nodes: usize,
+    /// The entry records (enlarged box, leaf, lane) and their free list.
+    pub entries: usize,
+    /// The entries' keys.
+    pub keys: usize,
+    /// The handles' generations.
+    pub handles: usize,
+}
+
+impl MemoryUse {
+    /// Every part together.
+    pub fn total(&self) -> usize {
+        self.nodes + self.entries + self.keys + self.handles
+    }
+}
