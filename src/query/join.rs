@@ -463,10 +463,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.stats.nodes_visited += 1;
         let JoinItem { a, b, region } = item;
         let (na, nb) = (self.node(a), self.node(b));
-        join_lane_pairs(na, nb, a == b, &region, test, ws, masks, |i, j| {
+        let base = ws.join_stack.len();
+        let flow = join_lane_pairs(na, nb, a == b, &region, test, ws, masks, |i, j| {
             let (ka, kb) = (self.key_of(na.child[i]), self.key_of(nb.child[j]));
             visit(ka.min(kb), ka.max(kb))
-        })
+        });
+        // The pairs just pushed: their nodes' loads overlap, where the tree
+        // is not in cache, instead of stalling pair after pair.
+        for pushed in &ws.join_stack[base.min(ws.join_stack.len())..] {
+            self.prefetch_node(pushed.a);
+            self.prefetch_node(pushed.b);
+        }
+        flow
     }
 
     /// All pairs of [`RTree::visit_self_join`], sorted.
@@ -576,13 +584,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             return ControlFlow::Continue(());
         }
-        join_lane_pairs(na, nb, false, &region, test, ws, masks, |i, j| {
+        let base = ws.join_stack.len();
+        let flow = join_lane_pairs(na, nb, false, &region, test, ws, masks, |i, j| {
             let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
             if ka == kb {
                 return ControlFlow::Continue(());
             }
             visit(ka, kb)
-        })
+        });
+        // As in the self join: the pushed pairs' nodes start loading now.
+        for pushed in &ws.join_stack[base.min(ws.join_stack.len())..] {
+            self.prefetch_node(pushed.a);
+            other.prefetch_node(pushed.b);
+        }
+        flow
     }
 
     /// All pairs of [`RTree::visit_cross_join`], sorted.
