@@ -120,6 +120,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// [`Self::move_proxy`] in this structure (a rebuild under way is told
     /// afterwards).
+    #[inline(always)]
     pub(super) fn move_proxy_here(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
         let (leaf, lane, fat) = {
             let p = &self.proxies[proxy as usize];
