@@ -79,6 +79,11 @@ pub fn paired_ratio<A, B>(
         a_us.push(ta);
         b_us.push(tb);
     }
+    summarize(ratios, a_us, b_us)
+}
+
+/// The rounds' ratios and times as a [`PairedRatio`].
+fn summarize(mut ratios: Vec<f64>, mut a_us: Vec<f64>, mut b_us: Vec<f64>) -> PairedRatio {
     let low = ratios.iter().copied().fold(f64::INFINITY, f64::min);
     let high = ratios.iter().copied().fold(0.0, f64::max);
     PairedRatio {
@@ -147,13 +152,5 @@ pub fn paired_ratio_cold<A, B>(
         a_us.push(ta);
         b_us.push(tb);
     }
-    let low = ratios.iter().copied().fold(f64::INFINITY, f64::min);
-    let high = ratios.iter().copied().fold(0.0, f64::max);
-    PairedRatio {
-        median: median(&mut ratios),
-        low,
-        high,
-        a_us: median(&mut a_us),
-        b_us: median(&mut b_us),
-    }
+    summarize(ratios, a_us, b_us)
 }
