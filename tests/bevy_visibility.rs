@@ -253,9 +253,6 @@ impl Twins {
     fn check(&mut self, frame: usize) -> usize {
         let mut visible = 0;
         for (i, pair) in self.entities.iter().enumerate() {
-            let [a, b] = [&self.bevy, &self.ours]
-                .map(|app| app.world().get::<ViewVisibility>(pair[0]).map(|v| v.get()));
-            let _ = (a, b);
             let bevy = self
                 .bevy
                 .world()

@@ -218,23 +218,21 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let Some(mut job) = self.rebuild_job.take() else {
             return false;
         };
+        // At least one unit per call, then until the units or the time run
+        // out; a finished build is swapped in at once.
         let mut done = 0usize;
         loop {
             if let Phase::Done { root } = job.phase {
                 self.swap_in(*job, root);
                 return true;
             }
-            self.advance(&mut job);
-            done += 1;
             let out_of_time = deadline.is_some_and(|d| Instant::now() >= d);
-            if done >= units || out_of_time {
-                if let Phase::Done { root } = job.phase {
-                    self.swap_in(*job, root);
-                    return true;
-                }
+            if done > 0 && (done >= units || out_of_time) {
                 self.rebuild_job = Some(job);
                 return false;
             }
+            self.advance(&mut job);
+            done += 1;
         }
     }
 

@@ -75,16 +75,13 @@ pub(super) struct LightScratch {
     faces: [Vec<Entity>; 6],
 }
 
-/// How a light's shadow views see a caster that passes Bevy's
-/// non-geometric checks.
+/// How a point or spot light's shadow views see a caster that passes
+/// Bevy's non-geometric checks.
 enum Shape<'a> {
     /// A point light: the range sphere, then the six cube faces.
     Point(&'a Sphere, &'a CubemapFrusta),
     /// A spot light: the range sphere, then its frustum.
     Spot(&'a Sphere, &'a BevyFrustum),
-    /// One cascade of a directional light (no near plane); `proven` when
-    /// the tree showed the box inside every tested plane.
-    Cascade(&'a BevyFrustum, bool),
 }
 
 /// Replaces bevy_light's `check_point_light_mesh_visibility` and
@@ -223,14 +220,15 @@ pub(super) fn check_light_visibility_from_index(
                 cascade.clear();
                 for &(entity, proven) in &scratch.candidates {
                     if let Ok(mut item) = casters.get_mut(entity) {
-                        let shape = Shape::Cascade(frustum, proven && settings.prove_inside);
-                        decide(&mut item, &shape, &mask, Some(*view), ranges, cascade);
+                        let proven = proven && settings.prove_inside;
+                        let test = (frustum, proven);
+                        decide_cascade(&mut item, test, &mask, *view, ranges, cascade);
                     }
                 }
                 for &entity in &scratch.one_by_one {
                     if let Ok(mut item) = casters.get_mut(entity) {
-                        let shape = Shape::Cascade(frustum, false);
-                        decide(&mut item, &shape, &mask, Some(*view), ranges, cascade);
+                        let test = (frustum, false);
+                        decide_cascade(&mut item, test, &mask, *view, ranges, cascade);
                     }
                 }
                 cascade.sort_unstable();
@@ -334,22 +332,20 @@ fn decide_faces(
                 faces[0].push(*entity);
             }
         }
-        Shape::Cascade(..) => unreachable!("cascades are decided by `decide`"),
     }
 }
 
-/// Bevy's decision for one caster and one cascade of a directional light.
-fn decide(
+/// Bevy's decision for one caster and one cascade of a directional light
+/// (its frustum, and whether the tree proved the caster inside every
+/// plane Bevy tests).
+fn decide_cascade(
     item: &mut CasterItem<'_, '_>,
-    shape: &Shape<'_>,
+    (frustum, proven): (&BevyFrustum, bool),
     mask: &RenderLayers,
-    view: Option<Entity>,
+    view: Entity,
     ranges: Option<&VisibleEntityRanges>,
     out: &mut Vec<Entity>,
 ) {
-    let Shape::Cascade(frustum, proven) = shape else {
-        return;
-    };
     let (entity, inherited, view_visibility, entity_mask, aabb, transform, has_range, nfc) = item;
     if !may_cast(
         *entity,
@@ -357,12 +353,12 @@ fn decide(
         *entity_mask,
         *has_range,
         mask,
-        view,
+        Some(view),
         ranges,
     ) {
         return;
     }
-    if let (Some(aabb), Some(transform), false, false) = (aabb, transform, *nfc, *proven) {
+    if let (Some(aabb), Some(transform), false, false) = (aabb, transform, *nfc, proven) {
         // Shadow casters before the near plane still cast: no near plane.
         if !frustum.intersects_obb(aabb, &transform.affine(), false, true) {
             return;
