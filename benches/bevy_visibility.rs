@@ -420,6 +420,7 @@ fn run(case: &Case, rounds: usize, frames: usize, options: Options) {
     if options.no_proof {
         ours.insert_resource(bevy_rtree::plugin::BevyVisibilitySettings {
             prove_inside: false,
+            ..Default::default()
         });
     }
     for app in [&mut bevy, &mut ours] {

@@ -339,6 +339,7 @@ fn lights_see_what_bevy_lights_see_every_frame() {
         // candidate takes Bevy's test.
         twins.apps[1].insert_resource(BevyVisibilitySettings {
             prove_inside: seed == 0,
+            ..Default::default()
         });
         for _ in 0..2_000 {
             twins.spawn_caster();

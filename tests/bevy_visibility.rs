@@ -26,12 +26,24 @@ use bevy_rtree::plugin::{
     SpatialIndexPlugin,
 };
 use bevy_rtree::scene::SceneRng;
+use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use bevy_transform::prelude::*;
 use glam::{Quat, Vec3, Vec3A};
+
+/// Bevy's compute pool with three threads (where bevy_tasks has threads:
+/// features `parallel` or `multi_threaded`), so that the plugin's parallel
+/// paths run even on a machine of two cores.
+fn three_threads() {
+    let pool = ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(3).build());
+    if cfg!(any(feature = "parallel", feature = "multi_threaded")) {
+        assert_eq!(pool.thread_num(), 3);
+    }
+}
 
 /// A headless App with Bevy's transforms and cameras, and with the index
 /// serving visibility if `ours`.
 fn app(ours: bool) -> App {
+    three_threads();
     let mut app = App::new();
     app.add_plugins((TransformPlugin, CameraPlugin))
         .insert_resource(Assets::<Mesh>::default())
@@ -304,11 +316,16 @@ impl Twins {
 }
 
 /// Random scenes of a few thousand entities, five kinds of camera and
-/// hundreds of frames of moves, teleports, toggles and respawns.
+/// hundreds of frames of moves, teleports, toggles and respawns; the
+/// second scene with the work kept on one thread.
 #[test]
 fn cameras_see_what_bevy_sees_every_frame() {
     for seed in 0..3 {
         let mut twins = Twins::new(seed);
+        twins.ours.insert_resource(BevyVisibilitySettings {
+            parallel: seed != 1,
+            ..Default::default()
+        });
         for _ in 0..2_000 {
             twins.spawn_entity();
         }
@@ -341,6 +358,7 @@ fn cameras_without_the_inside_proof_see_what_bevy_sees() {
     let mut twins = Twins::new(5);
     twins.ours.insert_resource(BevyVisibilitySettings {
         prove_inside: false,
+        ..Default::default()
     });
     for _ in 0..2_000 {
         twins.spawn_entity();

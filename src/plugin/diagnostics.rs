@@ -52,10 +52,17 @@ impl QueryWork {
         self.add(queries, workspace.take_stats());
     }
 
-    /// Adds one run's statistics, taken from a single-threaded workspace.
+    /// Adds one run's statistics, summed over the workspaces of its
+    /// queries (one each where they ran in parallel).
     #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
-    pub(crate) fn record_workspace(&mut self, queries: usize, workspace: &mut QueryWorkspace) {
-        self.add(queries, workspace.take_stats());
+    pub(crate) fn record_workspaces(&mut self, queries: usize, workspaces: &mut [QueryWorkspace]) {
+        let mut sum = crate::QueryStats::default();
+        for ws in workspaces {
+            let stats = ws.take_stats();
+            sum.nodes_visited += stats.nodes_visited;
+            sum.entries_tested += stats.entries_tested;
+        }
+        self.add(queries, sum);
     }
 
     fn add(&mut self, queries: usize, stats: crate::QueryStats) {

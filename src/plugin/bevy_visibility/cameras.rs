@@ -11,7 +11,9 @@ use bevy_camera::visibility::{
 };
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::QueryData;
+use bevy_tasks::ComputeTaskPool;
 use bevy_transform::prelude::GlobalTransform;
+use bevy_utils::Parallel;
 use glam::Vec3;
 
 use super::{BevyVisibilitySettings, Renderable};
@@ -67,39 +69,68 @@ const LOOK_AHEAD: usize = 8;
 /// `u16` per entity: candidate, and proven inside).
 const VIEWS_PER_PASS: usize = 8;
 
-/// One active camera as Bevy's culling sees it, and what it saw.
-struct View {
+/// What Bevy's tests read of one active camera.
+struct Sight {
     camera: Entity,
     frustum: BevyFrustum,
     mask: RenderLayers,
     /// The camera has `NoCpuCulling`: no frustum test at all.
     no_culling: bool,
+}
+
+/// The entities a view saw, per visibility class.
+#[derive(Default)]
+struct Seen(Vec<(TypeId, Vec<Entity>)>);
+
+impl Seen {
+    fn push(&mut self, entity: Entity, class: TypeId) {
+        match self.0.iter_mut().find(|(c, _)| *c == class) {
+            Some((_, list)) => list.push(entity),
+            None => self.0.push((class, vec![entity])),
+        }
+    }
+
+    fn clear(&mut self) {
+        self.0.iter_mut().for_each(|(_, list)| list.clear());
+    }
+
+    /// Moves what `other` saw into this list (emptying `other`'s lists but
+    /// keeping their allocations).
+    fn take_from(&mut self, other: &mut Seen) {
+        for (class, list) in &mut other.0 {
+            match self.0.iter_mut().find(|(c, _)| c == class) {
+                Some((_, mine)) => mine.append(list),
+                None => self.0.push((*class, std::mem::take(list))),
+            }
+        }
+    }
+}
+
+/// One active camera as Bevy's culling sees it, and what it saw.
+struct View {
+    sight: Sight,
+    /// Where the camera is, which the tree's cull is rebased on.
+    eye: Vec3,
     /// Its candidates from the tree, and whether the tree proved each
     /// inside every plane Bevy tests (empty for `no_culling`).
     candidates: Vec<(Entity, bool)>,
     /// Its visible entities per visibility class.
-    visible: Vec<(TypeId, Vec<Entity>)>,
-}
-
-impl View {
-    fn push(&mut self, entity: Entity, class: TypeId) {
-        match self.visible.iter_mut().find(|(c, _)| *c == class) {
-            Some((_, list)) => list.push(entity),
-            None => self.visible.push((class, vec![entity])),
-        }
-    }
+    visible: Seen,
 }
 
 /// Scratch kept from frame to frame.
 #[derive(Default)]
 pub(super) struct Scratch {
-    workspace: QueryWorkspace,
+    /// One per view, so that views can be culled in parallel.
+    workspaces: Vec<QueryWorkspace>,
     views: Vec<View>,
     /// Per entity index, for a pass over all entities: two bits per view
     /// of the pass (candidate, proven inside).
     marks: Vec<u16>,
     /// The entities outside the tree, tested by every view.
     one_by_one: Vec<Entity>,
+    /// Per thread of the pass in storage order, what each view saw.
+    seen: Parallel<Vec<Seen>>,
 }
 
 /// Replaces Bevy's `check_visibility_cpu_culling`, in
@@ -140,48 +171,51 @@ pub(super) fn check_visibility_from_index(
         if !state.is_active {
             continue;
         }
-        let mut view = spare.pop().unwrap_or_else(|| View {
+        let sight = Sight {
             camera,
             frustum: *frustum,
-            mask: RenderLayers::default(),
+            mask: mask.cloned().unwrap_or_default(),
             no_culling,
-            candidates: Vec::new(),
-            visible: Vec::new(),
+        };
+        let (mut listed, mut visible) = spare
+            .pop()
+            .map_or_else(Default::default, |v| (v.candidates, v.visible));
+        listed.clear();
+        visible.clear();
+        views.push(View {
+            sight,
+            eye: transform.map_or(Vec3::ZERO, GlobalTransform::translation),
+            candidates: listed,
+            visible,
         });
-        view.camera = camera;
-        view.frustum = *frustum;
-        view.mask = mask.cloned().unwrap_or_default();
-        view.no_culling = no_culling;
-        view.candidates.clear();
-        view.visible.iter_mut().for_each(|(_, list)| list.clear());
-        if !no_culling {
-            let eye = transform.map_or(Vec3::ZERO, GlobalTransform::translation);
-            candidates(
-                &index,
-                frustum,
-                UNTESTED_BY_CAMERAS,
-                eye,
-                &mut scratch.workspace,
-                &mut view.candidates,
-            );
-            if !settings.prove_inside {
-                view.candidates.iter_mut().for_each(|c| c.1 = false);
-            }
+    }
+    let parallel = settings.on_several_threads();
+    cull_views(&index, &mut views, &mut scratch.workspaces, parallel);
+    if !settings.prove_inside {
+        for view in &mut views {
+            view.candidates.iter_mut().for_each(|c| c.1 = false);
         }
-        views.push(view);
     }
     let count = entities.p0().iter().len();
     let candidates: usize = views.iter().map(|v| v.candidates.len()).sum();
     let mut one_by_one = std::mem::take(&mut scratch.one_by_one);
     one_by_one.clear();
     one_by_one.extend(outside_the_tree.iter().chain(index.unindexed()));
-    let any_all = views.iter().any(|v| v.no_culling);
+    let any_all = views.iter().any(|v| v.sight.no_culling);
     // A pass over every entity costs a few nanoseconds per entity; a look-up
     // by `Entity` some tens per candidate.
     if any_all || candidates * 8 > count {
         let mut culled = entities.p0();
         for pass in views.chunks_mut(VIEWS_PER_PASS) {
-            decide_in_storage_order(pass, &one_by_one, &mut culled, ranges, &mut scratch.marks);
+            decide_in_storage_order(
+                pass,
+                &one_by_one,
+                &mut culled,
+                ranges,
+                &mut scratch.marks,
+                &mut scratch.seen,
+                parallel,
+            );
         }
     } else {
         for view in &mut views {
@@ -198,32 +232,34 @@ pub(super) fn check_visibility_from_index(
                     std::hint::black_box((item.0, item.1));
                 }
                 if inside && let Ok(item) = proven.get_mut(entity) {
-                    decide_proven(view, entity, item, ranges);
+                    decide_proven(&view.sight, &mut view.visible, entity, item, ranges);
                 }
             }
             let mut culled = entities.p0();
             for &(entity, inside) in &candidates {
                 if !inside && let Ok(mut item) = culled.get_mut(entity) {
-                    decide(view, &mut item, false, ranges);
+                    decide(&view.sight, &mut view.visible, &mut item, false, ranges);
                 }
             }
             for &entity in &one_by_one {
                 if let Ok(mut item) = culled.get_mut(entity) {
-                    decide(view, &mut item, false, ranges);
+                    decide(&view.sight, &mut view.visible, &mut item, false, ranges);
                 }
             }
             view.candidates = candidates;
         }
     }
-    let culled_views = views.iter().filter(|v| !v.no_culling).count();
+    let culled_views = views.iter().filter(|v| !v.sight.no_culling).count();
     for view in &mut views {
-        let Ok((_, mut visible, ..)) = cameras.get_mut(view.camera) else {
+        let Ok((_, mut visible, ..)) = cameras.get_mut(view.sight.camera) else {
             continue;
         };
         visible.clear_all();
-        for (class, list) in &mut view.visible {
-            // Sorted, as Bevy's diffing of visible lists needs.
-            list.sort_unstable();
+        for (class, list) in &mut view.visible.0 {
+            // Sorted, as Bevy's diffing of visible lists needs. A stable
+            // sort, because it merges runs already in order: the walk in
+            // storage order gives one per thread's batch.
+            list.sort();
             list.dedup();
             std::mem::swap(visible.get_mut(*class), list);
         }
@@ -232,8 +268,46 @@ pub(super) fn check_visibility_from_index(
     scratch.one_by_one = one_by_one;
     scratch.views.append(&mut spare);
     if culled_views > 0 {
-        let ws = &mut scratch.workspace;
-        sink.add(|d| d.culling.record_workspace(culled_views, ws));
+        let workspaces = &mut scratch.workspaces;
+        sink.add(|d| d.culling.record_workspaces(culled_views, workspaces));
+    }
+}
+
+/// Each culling view's candidates from the tree; on a task pool of several
+/// threads, the views in parallel (one task each, with its own workspace).
+fn cull_views(
+    index: &SpatialIndex<Renderable>,
+    views: &mut [View],
+    workspaces: &mut Vec<QueryWorkspace>,
+    parallel: bool,
+) {
+    if workspaces.len() < views.len() {
+        workspaces.resize_with(views.len(), QueryWorkspace::default);
+    }
+    let cull = |view: &mut View, ws: &mut QueryWorkspace| {
+        if !view.sight.no_culling {
+            let frustum = &view.sight.frustum;
+            candidates(
+                index,
+                frustum,
+                UNTESTED_BY_CAMERAS,
+                view.eye,
+                ws,
+                &mut view.candidates,
+            );
+        }
+    };
+    let culling = views.iter().filter(|v| !v.sight.no_culling).count();
+    if parallel && culling > 1 {
+        ComputeTaskPool::get().scope(|scope| {
+            for (view, ws) in views.iter_mut().zip(workspaces.iter_mut()) {
+                scope.spawn(async move { cull(view, ws) });
+            }
+        });
+    } else {
+        for (view, ws) in views.iter_mut().zip(workspaces.iter_mut()) {
+            cull(view, ws);
+        }
     }
 }
 
@@ -241,12 +315,19 @@ pub(super) fn check_visibility_from_index(
 /// storage order and testing each against the views that have it as a
 /// candidate (every view that culls nothing, and every view for the
 /// entities outside the tree).
+///
+/// The walk is Bevy's parallel iteration: on a task pool of several
+/// threads each thread gathers what it saw in its own lists, merged
+/// afterwards (the lists are sorted before they are handed to Bevy, so the
+/// order of the merge does not show).
 fn decide_in_storage_order(
     views: &mut [View],
     one_by_one: &[Entity],
     culled: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
     ranges: Option<&VisibleEntityRanges>,
     marks: &mut Vec<u16>,
+    seen: &mut Parallel<Vec<Seen>>,
+    parallel: bool,
 ) {
     const CANDIDATE: u16 = 0b01;
     const PROVEN: u16 = 0b10;
@@ -260,7 +341,7 @@ fn decide_in_storage_order(
     let mut all = 0u16;
     for (v, view) in views.iter().enumerate() {
         let shift = 2 * v;
-        if view.no_culling {
+        if view.sight.no_culling {
             all |= CANDIDATE << shift;
         }
         for &(entity, proven) in &view.candidates {
@@ -273,15 +354,42 @@ fn decide_in_storage_order(
             mark(entity, CANDIDATE << shift);
         }
     }
-    for mut item in culled.iter_mut() {
+    let mut visible: Vec<Seen> = views
+        .iter_mut()
+        .map(|v| std::mem::take(&mut v.visible))
+        .collect();
+    let sights: Vec<&Sight> = views.iter().map(|v| &v.sight).collect();
+    let marks_read: &[u16] = marks;
+    let walk = |lists: &mut Vec<Seen>, mut item: CulledItem<'_, '_>| {
         let at = item.0.index_u32() as usize;
-        let mut bits = all | marks.get(at).copied().unwrap_or(0);
+        let mut bits = all | marks_read.get(at).copied().unwrap_or(0);
         while bits != 0 {
             let v = bits.trailing_zeros() as usize / 2;
             let proven = bits >> (2 * v) & PROVEN != 0;
             bits &= !(0b11 << (2 * v));
-            decide(&mut views[v], &mut item, proven, ranges);
+            decide(sights[v], &mut lists[v], &mut item, proven, ranges);
         }
+    };
+    if parallel {
+        culled.par_iter_mut().for_each_init(
+            || {
+                let mut lists = seen.borrow_local_mut();
+                lists.resize_with(sights.len(), Seen::default);
+                lists
+            },
+            |lists, item| walk(lists, item),
+        );
+        for local in seen.iter_mut() {
+            for (mine, list) in visible.iter_mut().zip(local.iter_mut()) {
+                mine.take_from(list);
+            }
+        }
+    } else {
+        // One thread: straight into the views' lists.
+        culled.iter_mut().for_each(|item| walk(&mut visible, item));
+    }
+    for (view, list) in views.iter_mut().zip(visible) {
+        view.visible = list;
     }
     // Cleared mark by mark, not by walking the entities: a marked entity
     // the walk did not meet must not carry its marks into the next pass.
@@ -298,14 +406,15 @@ fn decide_in_storage_order(
 /// [`decide`] for an entity the tree proved inside every plane: Bevy's
 /// other checks, through the narrower [`Proven`] query.
 fn decide_proven(
-    view: &mut View,
+    sight: &Sight,
+    seen: &mut Seen,
     entity: Entity,
     item: <Proven<'static> as QueryData>::Item<'_, '_>,
     ranges: Option<&VisibleEntityRanges>,
 ) {
     let (inherited, mut view_visibility, class, mask, has_range) = item;
-    if may_be_seen(view, entity, inherited, mask, has_range, ranges) {
-        see(view, entity, &mut view_visibility, class);
+    if may_be_seen(sight, entity, inherited, mask, has_range, ranges) {
+        see(seen, entity, &mut view_visibility, class);
     }
 }
 
@@ -313,7 +422,8 @@ fn decide_proven(
 /// makes it; `proven` skips the frustum tests for an entity the tree has
 /// shown to lie inside every plane they test.
 fn decide(
-    view: &mut View,
+    sight: &Sight,
+    seen: &mut Seen,
     item: &mut CulledItem<'_, '_>,
     proven: bool,
     ranges: Option<&VisibleEntityRanges>,
@@ -331,36 +441,36 @@ fn decide(
         has_range,
     ) = item;
     let entity = *entity;
-    if !may_be_seen(view, entity, inherited, *mask, *has_range, ranges) {
+    if !may_be_seen(sight, entity, inherited, *mask, *has_range, ranges) {
         return;
     }
-    if !proven && !*no_frustum_culling && !view.no_culling {
+    if !proven && !*no_frustum_culling && !sight.no_culling {
         if let Some(aabb) = aabb {
             let world_from_local = transform.affine();
             let sphere = Sphere {
                 center: world_from_local.transform_point3a(aabb.center),
                 radius: transform.radius_vec3a(aabb.half_extents),
             };
-            if !view.frustum.intersects_sphere(&sphere, false)
-                || !view
+            if !sight.frustum.intersects_sphere(&sphere, false)
+                || !sight
                     .frustum
                     .intersects_obb(aabb, &world_from_local, true, false)
             {
                 return;
             }
         } else if let Some(sphere) = sphere
-            && !view.frustum.intersects_sphere(sphere, false)
+            && !sight.frustum.intersects_sphere(sphere, false)
         {
             return;
         }
     }
-    see(view, entity, view_visibility, *class);
+    see(seen, entity, view_visibility, *class);
 }
 
 /// Bevy's checks before any frustum test: visible in the hierarchy, on a
 /// layer the camera renders, within its visibility range of the camera.
 fn may_be_seen(
-    view: &View,
+    sight: &Sight,
     entity: Entity,
     inherited: &InheritedVisibility,
     mask: Option<&RenderLayers>,
@@ -368,15 +478,15 @@ fn may_be_seen(
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && view.mask.intersects(mask.unwrap_or_default())
+        && sight.mask.intersects(mask.unwrap_or_default())
         && !(has_range
-            && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, view.camera)))
+            && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera)))
 }
 
 /// Marks `entity` seen by some view, and lists it for this one under each
 /// of its visibility classes.
 fn see(
-    view: &mut View,
+    seen: &mut Seen,
     entity: Entity,
     view_visibility: &mut Mut<ViewVisibility>,
     class: Option<&VisibilityClass>,
@@ -384,7 +494,7 @@ fn see(
     view_visibility.set_visible();
     if let Some(class) = class {
         for &id in class.iter() {
-            view.push(entity, id);
+            seen.push(entity, id);
         }
     }
 }

@@ -103,7 +103,10 @@ pub struct BevyVisibilityPlugin;
 ///
 /// let mut app = App::new();
 /// app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
-///     .insert_resource(BevyVisibilitySettings { prove_inside: false });
+///     .insert_resource(BevyVisibilitySettings {
+///         prove_inside: false,
+///         ..Default::default()
+///     });
 /// ```
 #[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BevyVisibilitySettings {
@@ -112,11 +115,28 @@ pub struct BevyVisibilitySettings {
     /// tests. On by default. Off, every candidate takes Bevy's tests: the
     /// same answers, more work (the performance notes price it).
     pub prove_inside: bool,
+    /// Where Bevy's `ComputeTaskPool` has more than one thread, the change
+    /// scan, the cameras' culls and the pass over the entities are split
+    /// over it, as Bevy splits its own culling. On by default; off keeps
+    /// the whole step on the thread that runs it. The answers are the same
+    /// either way.
+    pub parallel: bool,
 }
 
 impl Default for BevyVisibilitySettings {
     fn default() -> Self {
-        BevyVisibilitySettings { prove_inside: true }
+        BevyVisibilitySettings {
+            prove_inside: true,
+            parallel: true,
+        }
+    }
+}
+
+impl BevyVisibilitySettings {
+    /// Whether this frame's work is split over the task pool.
+    pub(super) fn on_several_threads(&self) -> bool {
+        self.parallel
+            && bevy_tasks::ComputeTaskPool::try_get().is_some_and(|pool| pool.thread_num() > 1)
     }
 }
 

@@ -9,9 +9,10 @@ use bevy_camera::visibility::{
 use bevy_ecs::event::EventPattern;
 use bevy_ecs::prelude::*;
 use bevy_transform::prelude::GlobalTransform;
+use bevy_utils::Parallel;
 use glam::Vec3;
 
-use super::Renderable;
+use super::{BevyVisibilitySettings, Renderable};
 use crate::geometry::Aabb;
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::{self, SpatialIndex, SyncScratch};
@@ -90,6 +91,24 @@ pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     Aabb::from_oriented(center, half, &affine).unwrap_or(Aabb::INVERTED)
 }
 
+/// What the sync reads of a changed renderable.
+type ChangedItem<'w> = (
+    Entity,
+    &'w BevyAabb,
+    &'w GlobalTransform,
+    Option<&'w RenderableHandle>,
+);
+
+/// The sync's buffers, kept from frame to frame.
+#[derive(Default)]
+pub(super) struct Scratch {
+    sync: SyncScratch,
+    /// The changed renderables' world boxes, gathered before the tree's
+    /// writes (per thread where the scan runs in parallel).
+    boxes: Vec<(Entity, Aabb, Option<ProxyId>)>,
+    per_thread: Parallel<Vec<(Entity, Aabb, Option<ProxyId>)>>,
+}
+
 /// Applies this frame's changed renderables (and those to read again) to
 /// the index, in one batch.
 #[allow(clippy::type_complexity)]
@@ -106,7 +125,8 @@ pub(super) fn sync_renderables(
     >,
     members: Query<(&BevyAabb, &GlobalTransform), Indexable>,
     mut resync: ResMut<Resync>,
-    mut scratch: Local<SyncScratch>,
+    mut scratch: Local<Scratch>,
+    settings: Res<BevyVisibilitySettings>,
     sink: Res<DiagnosticsSink>,
 ) {
     let mut again = std::mem::take(&mut resync.0);
@@ -118,16 +138,30 @@ pub(super) fn sync_renderables(
         let (aabb, transform) = members.get(entity).ok()?;
         Some((entity, world_box(aabb, transform), None))
     });
-    let boxes = changed
-        .iter()
-        .map(|(entity, aabb, transform, handle)| {
-            // Entities spawned before the plugin made the handle a required
-            // component have none: their entries are looked up instead.
-            (entity, world_box(aabb, transform), handle.and_then(|h| h.0))
-        })
-        .chain(again);
-    index::apply_changes(&mut index, boxes, &mut scratch, &sink, true);
-    for &(entity, id) in &scratch.inserted {
+    let Scratch {
+        sync,
+        boxes,
+        per_thread,
+    } = &mut *scratch;
+    boxes.clear();
+    // Entities spawned before the plugin made the handle a required
+    // component have none: their entries are looked up instead.
+    let changed_box = |(entity, aabb, transform, handle): ChangedItem<'_>| {
+        (entity, world_box(aabb, transform), handle.and_then(|h| h.0))
+    };
+    if settings.on_several_threads() {
+        // The scan of the change ticks and the world boxes on every thread;
+        // the tree's writes stay on this one.
+        changed.as_readonly().par_iter().for_each_init(
+            || per_thread.borrow_local_mut(),
+            |local, item| local.push(changed_box(item)),
+        );
+        per_thread.iter_mut().for_each(|local| boxes.append(local));
+    } else {
+        boxes.extend(changed.as_readonly().iter().map(changed_box));
+    }
+    index::apply_changes(&mut index, boxes.drain(..).chain(again), sync, &sink, true);
+    for &(entity, id) in &sync.inserted {
         if let Ok((.., Some(mut handle))) = changed.get_mut(entity) {
             handle.0 = Some(id);
         }
