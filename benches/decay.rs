@@ -9,7 +9,9 @@
 //!
 //! `cargo bench --bench decay` (`-- --frames 500` for a shorter run;
 //! `-- --rebuild-us 100` keeps every tree rebuilt when worn
-//! (`RTree::rebuild_when_worn`) in slices of 100 µs a frame; `-- --retiled` adds a row for the maintained trees
+//! (`RTree::rebuild_when_worn`) in slices of 100 µs a frame, and
+//! `-- --work-away` with it runs each rebuild's work on another thread
+//! as the plugin does on Bevy's async pool (`RTree::take_rebuild_work`); `-- --retiled` adds a row for the maintained trees
 //! retiled at the end, each entry keeping its enlarged box; words after
 //! `--` pick patterns by name). Beside the times, the nodes all families
 //! visited, maintained ÷ fresh: the same ratio without the timer's noise. Deterministic
@@ -18,7 +20,9 @@
 use std::time::Instant;
 
 use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
-use bevy_rtree::{Aabb, CullMode, JoinMode, ProxyId, QueryWorkspace, RTree, RayMode, RayResults};
+use bevy_rtree::{
+    Aabb, CullMode, JoinMode, ProxyId, QueryWorkspace, RTree, RayMode, RayResults, RebuildWork,
+};
 use glam::Vec3;
 
 const SEED: u64 = 0x5EED_2024;
@@ -80,10 +84,48 @@ struct World {
     /// With `--rebuild-us N`: each tree rebuilt continuously in slices of
     /// `N` µs a frame.
     rebuild_budget: Option<std::time::Duration>,
+    /// With `--work-away`: each rebuild's work runs on another thread
+    /// (as the plugin runs it on Bevy's async pool), one slot per tree.
+    work_away: bool,
+    away: [Option<std::thread::JoinHandle<RebuildWork<u32>>>; 3],
+}
+
+/// One frame of a tree's rebuild as the plugin runs it with a task pool:
+/// started when worn, its work sent to another thread and taken back
+/// when done, the rest advanced in slices of `budget`.
+fn keep_fresh(
+    tree: &mut RTree<u32>,
+    budget: std::time::Duration,
+    away: &mut Option<std::thread::JoinHandle<RebuildWork<u32>>>,
+) {
+    if let Some(worker) = away {
+        if !worker.is_finished() {
+            return;
+        }
+        tree.finish_rebuild_work(away.take().unwrap().join().unwrap());
+    }
+    if !tree.rebuild_pending() {
+        if !tree.is_worn() {
+            return;
+        }
+        tree.start_rebuild();
+        if let Some(mut work) = tree.take_rebuild_work() {
+            *away = Some(std::thread::spawn(move || {
+                work.run();
+                work
+            }));
+            return;
+        }
+    }
+    tree.step_rebuild(budget);
 }
 
 impl World {
-    fn new(scene: &TownScene, rebuild_budget: Option<std::time::Duration>) -> World {
+    fn new(
+        scene: &TownScene,
+        rebuild_budget: Option<std::time::Duration>,
+        work_away: bool,
+    ) -> World {
         let boxes = scene.boxes();
         let centres: Vec<Vec3> = boxes.iter().map(|b| (b.min + b.max) * 0.5).collect();
         let halves: Vec<Vec3> = boxes.iter().map(|b| (b.max - b.min) * 0.5).collect();
@@ -114,6 +156,8 @@ impl World {
             rng,
             frame: 0,
             rebuild_budget,
+            work_away,
+            away: [None, None, None],
         }
     }
 
@@ -228,10 +272,15 @@ impl World {
         if pattern == Pattern::Bullets {
             self.fire_bullets();
         }
-        for tree in [&mut self.all, &mut self.enemies, &mut self.barrels] {
+        let trees = [&mut self.all, &mut self.enemies, &mut self.barrels];
+        for (tree, away) in trees.into_iter().zip(&mut self.away) {
             tree.optimize(OPTIMIZE_BUDGET);
-            if let Some(budget) = self.rebuild_budget {
-                tree.rebuild_when_worn(budget);
+            match self.rebuild_budget {
+                Some(budget) if self.work_away => keep_fresh(tree, budget, away),
+                Some(budget) => {
+                    tree.rebuild_when_worn(budget);
+                }
+                None => {}
             }
         }
         self.frame += 1;
@@ -370,9 +419,15 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
-fn run(pattern: Pattern, frames: u32, rebuild_budget: Option<std::time::Duration>, retiled: bool) {
+fn run(
+    pattern: Pattern,
+    frames: u32,
+    rebuild_budget: Option<std::time::Duration>,
+    work_away: bool,
+    retiled: bool,
+) {
     let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
-    let mut world = World::new(&scene, rebuild_budget);
+    let mut world = World::new(&scene, rebuild_budget, work_away);
     let mut maintenance = Vec::new();
     for _ in 0..frames {
         maintenance.push(world.advance(pattern));
@@ -478,13 +533,19 @@ fn main() {
         .and_then(|v| v.parse().ok())
         .map(std::time::Duration::from_micros);
     let retiled = args.iter().any(|a| a == "--retiled");
+    let work_away = args.iter().any(|a| a == "--work-away");
     let picked: Vec<&String> = args
         .iter()
         .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
         .collect();
     println!(
         "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 \
-         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame"
+         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame{}",
+        if work_away {
+            ", the work on another thread"
+        } else {
+            ""
+        }
     );
     println!();
     println!(
@@ -495,7 +556,7 @@ fn main() {
     for pattern in PATTERNS {
         let name = format!("{pattern:?}").to_lowercase();
         if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {
-            run(pattern, frames, rebuild_budget, retiled);
+            run(pattern, frames, rebuild_budget, work_away, retiled);
         }
     }
 }

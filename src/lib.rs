@@ -227,7 +227,7 @@ pub use query::{
 };
 pub use tree::{
     InvariantViolation, MaintenanceStats, MemoryUse, MoveKind, ProxyId, QueryStats, RTree,
-    SplitStrategy, TreeSettings,
+    RebuildWork, SplitStrategy, TreeSettings,
 };
 
 // The README's code blocks compile and run as doc tests (with the feature

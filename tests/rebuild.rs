@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
-use bevy_rtree::{Aabb, CullMode, ProxyId, QueryWorkspace, RTree, Ray, SpatialError};
+use bevy_rtree::{Aabb, CullMode, ProxyId, QueryWorkspace, RTree, Ray, RebuildWork, SpatialError};
 use glam::Vec3;
 
 fn random_point(rng: &mut SceneRng) -> Vec3 {
@@ -29,6 +29,17 @@ fn cube(centre: Vec3, half: f32) -> Aabb {
 /// entry; several rebuilds are swapped in.
 #[test]
 fn answers_and_handles_hold_before_during_and_after_swaps() {
+    churn_through_rebuilds(false);
+}
+
+/// The same frames with each rebuild's work run on another thread, given
+/// back two frames later: the tree changes meanwhile as it would anyway.
+#[test]
+fn answers_and_handles_hold_while_the_work_runs_on_another_thread() {
+    churn_through_rebuilds(true);
+}
+
+fn churn_through_rebuilds(work_away: bool) {
     let scene = TownScene::new(20_000, 3);
     let mut tree = RTree::new();
     let mut oracle = BruteForce::default();
@@ -41,6 +52,8 @@ fn answers_and_handles_hold_before_during_and_after_swaps() {
     let mut rng = SceneRng::new(11);
     let mut next_key = scene.len() as u32;
     let mut swaps = 0;
+    let mut works_back = 0;
+    let mut away: Option<(usize, std::thread::JoinHandle<RebuildWork<u32>>)> = None;
     let mut ws = QueryWorkspace::default();
     for frame in 0..150 {
         let keys: Vec<u32> = handles.keys().copied().collect();
@@ -76,8 +89,29 @@ fn answers_and_handles_hold_before_during_and_after_swaps() {
         }
         if !tree.rebuild_pending() {
             tree.start_rebuild();
+            if work_away {
+                let mut work = tree.take_rebuild_work().unwrap();
+                assert!(!work.is_done());
+                let worker = std::thread::spawn(move || {
+                    work.run();
+                    work
+                });
+                away = Some((frame, worker));
+            }
         }
-        if tree.step_rebuild_units(150) {
+        if let Some((since, _)) = &away
+            && frame >= since + 2
+        {
+            let (_, worker) = away.take().unwrap();
+            let work = worker.join().unwrap();
+            assert!(work.is_done());
+            assert!(tree.finish_rebuild_work(work));
+            works_back += 1;
+        }
+        let away_now = away.is_some();
+        let swapped = tree.step_rebuild_units(150);
+        assert!(!(away_now && swapped), "no swap while the work is away");
+        if swapped {
             swaps += 1;
         }
         tree.optimize(64);
@@ -105,6 +139,79 @@ fn answers_and_handles_hold_before_during_and_after_swaps() {
         );
     }
     assert!(swaps >= 3, "{swaps} rebuilds swapped in");
+    assert!(
+        !work_away || works_back >= swaps,
+        "{works_back} pieces of work came back"
+    );
+}
+
+/// Work run on another thread gives the structure `rebuild()` gives.
+#[test]
+fn work_run_elsewhere_builds_what_rebuild_builds() {
+    let scene = TownScene::new(30_000, 6);
+    let (mut tree, _) = scene.bulk_loaded_tree();
+    let mut at_once = tree.clone();
+    at_once.rebuild();
+    tree.start_rebuild();
+    let mut work = tree.take_rebuild_work().unwrap();
+    assert!(
+        tree.take_rebuild_work().is_none(),
+        "one piece of work per rebuild"
+    );
+    // While it is away, steps do nothing.
+    assert!(!tree.step_rebuild(Duration::from_millis(5)));
+    assert!(tree.rebuild_pending());
+    std::thread::scope(|s| {
+        s.spawn(|| work.run());
+    });
+    assert!(tree.finish_rebuild_work(work));
+    while !tree.step_rebuild(Duration::from_micros(200)) {}
+    tree.validate().unwrap();
+    for level in 0..tree.height() {
+        assert_eq!(tree.nodes_at_level(level), at_once.nodes_at_level(level));
+    }
+    let query = cube(Vec3::new(1_000.0, 10.0, 1_000.0), 60.0);
+    let (mut a, mut b) = (QueryWorkspace::default(), QueryWorkspace::default());
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    tree.overlapping_into(&query, &mut a, &mut x);
+    at_once.overlapping_into(&query, &mut b, &mut y);
+    x.sort_unstable();
+    y.sort_unstable();
+    assert_eq!(x, y);
+    assert!(!x.is_empty());
+    assert_eq!(a.stats(), b.stats());
+}
+
+/// Work that is not the rebuild under way's (cancelled meanwhile, or
+/// another tree's) is refused and changes nothing; work given back unrun
+/// is finished by the steps.
+#[test]
+fn work_lands_only_in_its_own_rebuild() {
+    let scene = TownScene::new(3_000, 8);
+    let (mut tree, _) = scene.bulk_loaded_tree();
+    let (mut other, _) = scene.bulk_loaded_tree();
+    tree.start_rebuild();
+    other.start_rebuild();
+    let mine = tree.take_rebuild_work().unwrap();
+    let theirs = other.take_rebuild_work().unwrap();
+    assert!(!tree.finish_rebuild_work(theirs), "another tree's work");
+    tree.cancel_rebuild();
+    let before = tree.clone();
+    assert!(
+        !tree.finish_rebuild_work(mine),
+        "a cancelled rebuild's work"
+    );
+    assert!(!tree.rebuild_pending());
+    tree.validate().unwrap();
+    assert_eq!(tree.height(), before.height());
+    assert_eq!(tree.nodes_at_level(0), before.nodes_at_level(0));
+    // Unrun, given back: the steps do it.
+    tree.start_rebuild();
+    let unrun = tree.take_rebuild_work().unwrap();
+    assert!(tree.finish_rebuild_work(unrun));
+    while !tree.step_rebuild_units(10) {}
+    tree.validate().unwrap();
+    assert_eq!(tree.len(), 3_000);
 }
 
 /// With nothing changing meanwhile, a rebuild in steps swaps in the same

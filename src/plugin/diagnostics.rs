@@ -139,6 +139,8 @@ pub struct MaintenanceWork {
     pub runs: u32,
     /// Nodes re-tiled.
     pub nodes_repacked: u64,
+    /// Rebuilds swapped in (see `SpatialIndexPlugin::rebuild_budget`).
+    pub rebuilds: u32,
 }
 
 /// Per-frame counters of what the plugin ran, published at the end of every

@@ -41,7 +41,7 @@ use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
 /// ```
 #[derive(Resource)]
 pub struct SpatialIndex<L: Component = SpatialBounds> {
-    tree: RTree<Entity>,
+    pub(super) tree: RTree<Entity>,
     proxies: EntityHashMap<ProxyId>,
     /// Entities already warned about an invalid box (one warning each).
     warned: EntityHashSet,
@@ -308,24 +308,6 @@ pub(crate) fn apply_changes<L: Component>(
         index.generation += 1;
     }
     sink.add(|d| d.record_sync(&count));
-}
-
-/// Re-tiles the leaves that churn has degraded, a bounded amount per frame.
-pub(crate) fn maintain_layer<L: Component>(
-    mut index: ResMut<SpatialIndex<L>>,
-    settings: Res<super::SpatialIndexConfig>,
-    sink: Res<DiagnosticsSink>,
-) {
-    let repacked = index.tree.optimize(settings.optimize_budget);
-    sink.add(|d| {
-        d.maintenance.runs += 1;
-        d.maintenance.nodes_repacked += repacked as u64;
-    });
-}
-
-/// Run condition: the layer has degraded leaves waiting for repair.
-pub(crate) fn needs_maintenance<L: Component>(index: Res<SpatialIndex<L>>) -> bool {
-    index.tree.pending_repairs() > 0
 }
 
 /// Observer: an entity lost its box, its layer marker or its place (opt-out

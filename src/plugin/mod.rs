@@ -66,11 +66,14 @@ mod filter;
 mod frame_queries;
 mod index;
 mod join;
+mod maintenance;
 mod oracle;
 mod query_param;
 mod raycast;
 #[cfg(feature = "bevy")]
 mod transform;
+
+use std::time::Duration;
 
 use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;
@@ -130,6 +133,14 @@ pub struct SpatialIndexPlugin {
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
     /// repair in any one frame.
     pub optimize_budget: usize,
+    /// Time per layer per frame for a rebuild of the tree, started when
+    /// the changes since the last one reach a quarter of the entries, so
+    /// that the tree stays as fast as a fresh one however things move
+    /// (teleports, respawns, crowds). Its costly part runs on Bevy's
+    /// `AsyncComputeTaskPool` where the app has one (feature `parallel`);
+    /// the rest in slices of this budget. `None` turns it off (repair
+    /// alone). 0.25 ms by default.
+    pub rebuild_budget: Option<Duration>,
 }
 
 impl Default for SpatialIndexPlugin {
@@ -138,6 +149,7 @@ impl Default for SpatialIndexPlugin {
             tree: TreeSettings::default(),
             schedule: PostUpdate.intern(),
             optimize_budget: 64,
+            rebuild_budget: Some(Duration::from_micros(250)),
         }
     }
 }
@@ -148,6 +160,7 @@ pub(crate) struct SpatialIndexConfig {
     tree: TreeSettings,
     schedule: InternedScheduleLabel,
     optimize_budget: usize,
+    rebuild_budget: Option<Duration>,
 }
 
 /// The plugin's system sets, run in this order in the plugin's schedule.
@@ -213,6 +226,7 @@ impl Plugin for SpatialIndexPlugin {
             tree,
             schedule: self.schedule,
             optimize_budget: self.optimize_budget,
+            rebuild_budget: self.rebuild_budget,
         })
         .init_resource::<SpatialDiagnostics>()
         .init_resource::<DiagnosticsSink>()
@@ -396,9 +410,9 @@ fn register_layer_queries<L: Component>(app: &mut App, config: &SpatialIndexConf
     app.add_systems(
         config.schedule,
         (
-            index::maintain_layer::<L>
+            maintenance::maintain_layer::<L>
                 .in_set(SpatialIndexSystems::Maintain)
-                .run_if(index::needs_maintenance::<L>),
+                .run_if(maintenance::needs_maintenance::<L>),
             culling::cull_cameras::<L>
                 .in_set(SpatialIndexSystems::Queries)
                 .run_if(any_with_component::<CullingCamera<L>>),

@@ -21,6 +21,7 @@ pub(crate) mod node;
 mod optimize;
 mod prefetch;
 mod rebuild;
+mod rebuild_away;
 mod remove;
 mod repair_queue;
 mod settings;
@@ -30,6 +31,7 @@ mod update;
 mod validate;
 
 pub use handle::ProxyId;
+pub use rebuild_away::RebuildWork;
 pub use settings::TreeSettings;
 pub use split::SplitStrategy;
 pub use stats::{MaintenanceStats, MemoryUse, QueryStats};

@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 use super::bulk::{centre_key, group_range, widest_centre_axis};
 use super::handle::Stamp;
 use super::node::{NIL, Node};
+use super::rebuild_away::next_ticket;
 use super::{Entry, RTree};
 use crate::geometry::Aabb;
 
@@ -26,28 +27,45 @@ use crate::geometry::Aabb;
 #[derive(Clone, Debug)]
 pub(super) struct RebuildJob<const W: usize> {
     /// The new structure's nodes.
-    nodes: Vec<Node<W>>,
+    pub(super) nodes: Vec<Node<W>>,
     /// Per slot: the stamp of the entry the snapshot holds, so that a slot
     /// reused since is told apart.
-    snapshot_stamps: Vec<Stamp>,
+    pub(super) snapshot_stamps: Vec<Stamp>,
     /// Per slot: where the new structure holds the entry (leaf, lane) and
     /// its enlarged box there, once its leaf is filled.
-    placed: Vec<(u32, u32, Aabb)>,
+    pub(super) placed: Vec<(u32, u32, Aabb)>,
     /// Per node of the new structure: for a leaf, the bound its parent
     /// holds for it (fixed once filled).
-    leaf_bounds: Vec<Aabb>,
+    pub(super) leaf_bounds: Vec<Aabb>,
     /// Slots changed in a way the new structure has not absorbed, each once.
-    marked: Vec<u32>,
-    is_marked: Vec<bool>,
+    pub(super) marked: Vec<u32>,
+    pub(super) is_marked: Vec<bool>,
     /// Per slot: moved before its new leaf was filled (the leaf then reads
     /// its box from the tree; the others take the snapshot's, in order).
-    moved_early: Vec<bool>,
+    pub(super) moved_early: Vec<bool>,
     /// What remains to do.
-    phase: Phase,
+    pub(super) phase: Phase,
+    /// Tells this rebuild's tiling apart from any other's when it comes
+    /// back from another thread.
+    pub(super) ticket: u64,
+}
+
+impl<const W: usize> RebuildJob<W> {
+    /// Marks a slot for the swap, once.
+    pub(super) fn mark(&mut self, slot: u32) {
+        let s = slot as usize;
+        if s >= self.is_marked.len() {
+            self.is_marked.resize(s + 1, false);
+        }
+        if !self.is_marked[s] {
+            self.is_marked[s] = true;
+            self.marked.push(slot);
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
-enum Phase {
+pub(super) enum Phase {
     /// Tiling the entries of `level` into `groups` groups: median cuts
     /// still to make, as (start, end, first group, group count).
     Partition {
@@ -65,8 +83,35 @@ enum Phase {
         next_group: usize,
         above: Vec<Entry>,
     },
+    /// The work was taken out to run elsewhere
+    /// ([`RTree::take_rebuild_work`]); nothing to do until it comes back.
+    Away,
     /// Built: the new root.
     Done { root: u32 },
+}
+
+/// One median cut of a level's tiling, if any remain: splits the range on
+/// top of `cuts` between its groups. Returns whether cuts remain.
+pub(super) fn cut_once(
+    entries: &mut [Entry],
+    groups: usize,
+    cuts: &mut Vec<(usize, usize, usize, usize)>,
+) -> bool {
+    if let Some((start, end, first, count)) = cuts.pop()
+        && count > 1
+    {
+        let n = entries.len();
+        let slice = &mut entries[start..end];
+        let axis = widest_centre_axis(slice);
+        let left = count / 2;
+        let cut = group_range(n, groups, first + left).start - start;
+        slice.select_nth_unstable_by(cut, |a, b| {
+            centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis))
+        });
+        cuts.push((start, start + cut, first, left));
+        cuts.push((start + cut, end, first + left, count - left));
+    }
+    !cuts.is_empty()
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
@@ -136,6 +181,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             is_marked: vec![false; slots],
             moved_early: vec![false; slots],
             phase: Self::partition_phase(0, entries),
+            ticket: next_ticket(),
         }));
     }
 
@@ -199,12 +245,35 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// ```
     pub fn rebuild_when_worn(&mut self, budget: Duration) -> bool {
         if self.rebuild_job.is_none() {
-            if self.wear * 4 < self.len as u64 || self.len <= W {
+            if !self.is_worn() {
                 return false;
             }
             self.start_rebuild();
         }
         self.step_rebuild(budget)
+    }
+
+    /// Whether the changes that wear the tiling (inserts, removals, moves
+    /// that grew a leaf or were reinserted) since the last rebuild reach a
+    /// quarter of the entries: the point where
+    /// [`RTree::rebuild_when_worn`] starts one.
+    ///
+    /// ```
+    /// use bevy_rtree::{Aabb, RTree};
+    /// use glam::Vec3;
+    ///
+    /// let mut tree = RTree::new();
+    /// for i in 0..100u32 {
+    ///     tree.insert(i, Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 1.0))?)?;
+    /// }
+    /// // Built one insert at a time: worn.
+    /// assert!(tree.is_worn());
+    /// tree.rebuild();
+    /// assert!(!tree.is_worn());
+    /// # Ok::<(), bevy_rtree::SpatialError>(())
+    /// ```
+    pub fn is_worn(&self) -> bool {
+        self.wear * 4 >= self.len as u64 && self.len > W
     }
 
     /// [`RTree::step_rebuild`] by a count of work units (median cuts and
@@ -220,6 +289,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         };
         // At least one unit per call, then until the units or the time run
         // out; a finished build is swapped in at once.
+        if matches!(job.phase, Phase::Away) {
+            // The tiling runs elsewhere; nothing to do here until it is back.
+            self.rebuild_job = Some(job);
+            return false;
+        }
         let mut done = 0usize;
         loop {
             if let Phase::Done { root } = job.phase {
@@ -231,14 +305,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.rebuild_job = Some(job);
                 return false;
             }
-            self.advance(&mut job);
+            Self::advance(Some(self), &mut job);
             done += 1;
         }
     }
 
     /// The first phase of a level: tiling, or the root if the entries fit
     /// in one node.
-    fn partition_phase(level: u16, entries: Vec<Entry>) -> Phase {
+    pub(super) fn partition_phase(level: u16, entries: Vec<Entry>) -> Phase {
         let groups = if entries.len() <= W {
             1
         } else {
@@ -254,7 +328,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// One unit of work: a median cut, or a node filled.
-    fn advance(&self, job: &mut RebuildJob<W>) {
+    /// `tree` is the tree the rebuild belongs to, or `None` where the work
+    /// runs away from it ([`RTree::take_rebuild_work`]): every entry then
+    /// takes the snapshot's box, and the changes made meanwhile are
+    /// applied at the swap.
+    pub(super) fn advance(tree: Option<&Self>, job: &mut RebuildJob<W>) {
         match &mut job.phase {
             Phase::Partition {
                 level,
@@ -262,21 +340,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 groups,
                 cuts,
             } => {
-                if let Some((start, end, first, count)) = cuts.pop()
-                    && count > 1
-                {
-                    let n = entries.len();
-                    let slice = &mut entries[start..end];
-                    let axis = widest_centre_axis(slice);
-                    let left = count / 2;
-                    let cut = group_range(n, *groups, first + left).start - start;
-                    slice.select_nth_unstable_by(cut, |a, b| {
-                        centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis))
-                    });
-                    cuts.push((start, start + cut, first, left));
-                    cuts.push((start + cut, end, first + left, count - left));
-                }
-                if cuts.is_empty() {
+                if !cut_once(entries, *groups, cuts) {
                     job.phase = Phase::Fill {
                         level: *level,
                         entries: std::mem::take(entries),
@@ -299,7 +363,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     let lone = *groups == 1;
                     let marks = (&mut job.marked, &mut job.is_marked);
                     let group = &entries[range];
-                    let filled = self.fill_new_leaf(
+                    let filled = Self::fill_new_leaf(
+                        tree,
                         &mut job.nodes,
                         &mut job.placed,
                         marks,
@@ -341,7 +406,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     };
                 }
             }
-            Phase::Done { .. } => {}
+            Phase::Away | Phase::Done { .. } => {}
         }
     }
 
@@ -358,7 +423,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// [`TreeSettings::jump_limit`]: crate::TreeSettings::jump_limit
     fn fill_new_leaf(
-        &self,
+        tree: Option<&Self>,
         nodes: &mut Vec<Node<W>>,
         placed: &mut [(u32, u32, Aabb)],
         (marked, is_marked): (&mut Vec<u32>, &mut Vec<bool>),
@@ -376,7 +441,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         };
         for entry in group {
             let slot = entry.child as usize;
-            if self.stamps[slot] != snapshot_stamps[slot] {
+            let Some(this) = tree else {
+                // Away from the tree: the snapshot's box; the swap applies
+                // whatever changed.
+                kept.push((entry.child, entry.lane_box, entry.bound));
+                continue;
+            };
+            if this.stamps[slot] != snapshot_stamps[slot] {
                 // Removed meanwhile (and marked then).
                 continue;
             }
@@ -384,12 +455,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 kept.push((entry.child, entry.lane_box, entry.bound));
                 continue;
             }
-            let proxy = &self.proxies[slot];
-            let exact = self.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
+            let proxy = &this.proxies[slot];
+            let exact = this.nodes[proxy.leaf as usize].lane_box(proxy.lane as usize);
             let then = entry.lane_box;
-            let size = then.extent().max_element().max(self.settings.margin);
+            let size = then.extent().max_element().max(this.settings.margin);
             let moved = ((exact.min + exact.max) - (then.min + then.max)).abs() * 0.5;
-            if moved.max_element() > self.settings.jump_limit * size {
+            if moved.max_element() > this.settings.jump_limit * size {
                 mark(entry.child);
                 continue;
             }
@@ -438,13 +509,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 return;
             }
         }
-        if s >= job.is_marked.len() {
-            job.is_marked.resize(s + 1, false);
-        }
-        if !job.is_marked[s] {
-            job.is_marked[s] = true;
-            job.marked.push(slot);
-        }
+        job.mark(slot);
     }
 
     /// Installs the new structure and applies the marked changes to it.
@@ -456,7 +521,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             snapshot_stamps,
             ..
         } = job;
-        let marked_count = marked.len();
         // The marked entries' boxes as they are now, read from the
         // structure about to go.
         let replay: Vec<(u32, Option<Aabb>)> = marked
@@ -497,6 +561,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 _ => proxy.leaf = NIL,
             }
         }
+        // What wears the new tiling is what the replay changes in its
+        // structure (a move that grows a leaf or is reinserted counts
+        // itself), not the entries it only rewrites in place: counting
+        // those would call for the next rebuild at once wherever many
+        // entries move a little.
+        self.wear = 0;
         for (slot, now) in replay {
             let s = slot as usize;
             let same_entry = snapshot_stamps.get(s) == Some(&self.stamps[s]);
@@ -514,6 +584,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             if let Some(exact) = now {
                 let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
                 self.proxies[s].fat = fat;
+                self.wear += 1;
                 self.insert_entry(
                     Entry {
                         lane_box: exact,
@@ -526,7 +597,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         // Entries that left meanwhile may leave a root with one child.
         self.shrink_root();
-        self.wear = marked_count as u64;
         self.maintenance.rebuilds += 1;
     }
 }

@@ -1,0 +1,110 @@
+//! The plugin's rebuild (`SpatialIndexPlugin::rebuild_budget`): in a scene
+//! where entities teleport every frame, rebuilds are started and swapped
+//! in, and after every frame the index is valid and answers as the
+//! brute-force oracle does. With feature `parallel` and an
+//! `AsyncComputeTaskPool`, each rebuild's tiling runs on the pool.
+#![cfg(feature = "plugin")]
+
+use std::time::Duration;
+
+use bevy_app::prelude::*;
+use bevy_ecs::prelude::*;
+use bevy_rtree::plugin::*;
+use bevy_rtree::scene::SceneRng;
+use bevy_rtree::{Aabb, Ray};
+use glam::Vec3;
+
+fn random_box(rng: &mut SceneRng) -> Aabb {
+    let at = Vec3::new(
+        rng.range(0.0, 500.0),
+        rng.range(0.0, 20.0),
+        rng.range(0.0, 500.0),
+    );
+    let half = Vec3::splat(rng.range(0.2, 2.0));
+    Aabb::new(at - half, at + half).unwrap()
+}
+
+/// Runs `frames` frames of 3 % teleports and 20 % steps over `count`
+/// entities, checking the index after every frame; returns the rebuilds
+/// swapped in.
+fn teleporting_scene(plugin: SpatialIndexPlugin, count: usize, frames: usize) -> u32 {
+    let mut app = App::new();
+    app.add_plugins(plugin);
+    let mut rng = SceneRng::new(21);
+    let entities: Vec<Entity> = (0..count)
+        .map(|_| {
+            app.world_mut()
+                .spawn(SpatialBounds(random_box(&mut rng)))
+                .id()
+        })
+        .collect();
+    let mut rebuilds = 0;
+    for frame in 0..frames {
+        for &entity in &entities {
+            let roll = rng.below(100);
+            let mut bounds = app.world_mut().get_mut::<SpatialBounds>(entity).unwrap();
+            if roll < 3 {
+                bounds.0 = random_box(&mut rng);
+            } else if roll < 23 {
+                let step = Vec3::new(rng.range(-0.5, 0.5), 0.0, rng.range(-0.5, 0.5));
+                bounds.0 = Aabb::new(bounds.0.min + step, bounds.0.max + step).unwrap();
+            }
+        }
+        app.update();
+        rebuilds += app
+            .world()
+            .resource::<SpatialDiagnostics>()
+            .maintenance
+            .rebuilds;
+        let oracle = layer_oracle::<SpatialBounds>(app.world_mut());
+        let index = app.world().resource::<SpatialIndex>();
+        index.validate().unwrap();
+        assert_eq!(index.len(), oracle.len());
+        let query = random_box(&mut rng).grown(Vec3::splat(20.0));
+        assert_eq!(
+            index.tree().overlapping(&query),
+            oracle.overlapping(&query),
+            "frame {frame}"
+        );
+        let from = random_box(&mut rng).min;
+        let ray = Ray::new(from, rng.direction(), 300.0).unwrap();
+        let mut ws = bevy_rtree::QueryWorkspace::default();
+        assert_eq!(
+            index.tree().cast_ray(&ray, &mut ws),
+            oracle.ray_first(&ray),
+            "frame {frame}"
+        );
+    }
+    rebuilds
+}
+
+#[test]
+fn rebuilds_keep_the_answers_exact_and_are_swapped_in() {
+    #[cfg(feature = "parallel")]
+    bevy_tasks::AsyncComputeTaskPool::get_or_init(|| {
+        bevy_tasks::TaskPoolBuilder::new().num_threads(2).build()
+    });
+    let rebuilds = teleporting_scene(SpatialIndexPlugin::default(), 4_000, 120);
+    eprintln!("{rebuilds}");
+    assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
+}
+
+#[test]
+fn without_a_rebuild_budget_nothing_is_rebuilt() {
+    let plugin = SpatialIndexPlugin {
+        rebuild_budget: None,
+        ..SpatialIndexPlugin::default()
+    };
+    assert_eq!(teleporting_scene(plugin, 4_000, 40), 0);
+}
+
+#[test]
+fn a_tiny_budget_still_finishes_rebuilds() {
+    let plugin = SpatialIndexPlugin {
+        rebuild_budget: Some(Duration::from_nanos(1)),
+        ..SpatialIndexPlugin::default()
+    };
+    // One unit of work a frame (a median cut or a node): a rebuild of 600
+    // entries takes about a hundred frames.
+    assert!(teleporting_scene(plugin, 600, 250) >= 1);
+}
