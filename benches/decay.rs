@@ -435,6 +435,7 @@ fn run(
     let tail = &maintenance[maintenance.len().saturating_sub(200)..];
     let per_frame = tail.iter().sum::<f64>() / tail.len() as f64;
     world.all.validate().unwrap();
+    let rebuilds = world.all.take_maintenance_stats().rebuilds;
     let fresh = world.fresh();
     let maintained = [world.all, world.enemies, world.barrels];
     let mut rng = SceneRng::new(SEED ^ 0xB0C5);
@@ -473,7 +474,7 @@ fn run(
     for (label, (times, work)) in rows {
         let cells: Vec<String> = times.iter().map(|r| format!("{r:.2}")).collect();
         println!(
-            "| {pattern:?}, {label} | {} | {work:.2} | {per_frame:.3} |",
+            "| {pattern:?}, {label} | {} | {work:.2} | {per_frame:.3} | {rebuilds} |",
             cells.join(" | ")
         );
     }
@@ -549,10 +550,10 @@ fn main() {
     );
     println!();
     println!(
-        "| pattern | {} | nodes visited | maintenance ms/frame |",
+        "| pattern | {} | nodes visited | maintenance ms/frame | rebuilds |",
         FAMILIES.join(" | ")
     );
-    println!("|---|{}---:|---:|", "---:|".repeat(FAMILIES.len()));
+    println!("|---|{}---:|---:|---:|", "---:|".repeat(FAMILIES.len()));
     for pattern in PATTERNS {
         let name = format!("{pattern:?}").to_lowercase();
         if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {

@@ -5,7 +5,9 @@
 //! answers against brute force.
 //!
 //! Run with `cargo run --release --example town` (`-- --frames N`,
-//! `-- --count N` for a smaller scene; with the features
+//! `-- --count N` for a smaller scene, `-- --rebuild-us N` to rebuild worn
+//! trees in slices of N µs a frame where there is no task pool, 0 never;
+//! with the features
 //! `parallel,multi_threaded`, `-- --threads N` sets the task pool's size).
 
 use std::time::{Duration, Instant};
@@ -49,8 +51,14 @@ pub struct IndexTimer {
 
 /// Builds the town app: entities spawned, systems added, no frame run yet.
 pub fn build(count: usize, seed: u64) -> App {
+    build_with(count, seed, SpatialIndexPlugin::default())
+}
+
+/// [`build`] with the plugin's settings given.
+pub fn build_with(count: usize, seed: u64, plugin: SpatialIndexPlugin) -> App {
     let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin::default())
+    // Bevy's task pools, as DefaultPlugins and MinimalPlugins add them.
+    app.add_plugins((TaskPoolPlugin::default(), plugin))
         .add_spatial_join::<Enemy, Barrel>(TownScene::JOIN_DISTANCE, JoinMode::Euclidean)
         .init_resource::<IndexTimer>()
         // Chained: both systems draw from the scene's random stream and the
@@ -199,12 +207,15 @@ pub fn agrees_with_oracle(app: &App) -> bool {
 }
 
 fn arg(name: &str, default: usize) -> usize {
+    args_value(name).unwrap_or(default)
+}
+
+fn args_value(name: &str) -> Option<usize> {
     let args: Vec<String> = std::env::args().collect();
     args.iter()
         .position(|a| a == name)
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
 }
 
 /// `--threads N` (feature `parallel`): the task pool the parallel queries
@@ -233,8 +244,15 @@ fn main() {
     set_threads();
     let frames = arg("--frames", 120).max(1);
     let count = arg("--count", TownScene::STANDARD_COUNT);
+    let mut plugin = SpatialIndexPlugin::default();
+    if let Some(us) = args_value("--rebuild-us") {
+        plugin.rebuild = match us {
+            0 => RebuildMode::Off,
+            us => RebuildMode::OnTaskPoolOrInSlices(Duration::from_micros(us as u64)),
+        };
+    }
     let start = Instant::now();
-    let mut app = build(count, 2024);
+    let mut app = build_with(count, 2024, plugin);
     app.update();
     println!(
         "town: {count} entities spawned and indexed in {:.1} ms (first frame)",

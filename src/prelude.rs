@@ -26,9 +26,9 @@ pub use crate::plugin::LocalBounds;
 pub use crate::plugin::{BevyVisibilityPlugin, FollowBevyFrustum, Renderable};
 #[cfg(feature = "plugin")]
 pub use crate::plugin::{
-    CullingCamera, NoSpatialIndex, PairEnded, PairStarted, RayCaster, RayCasterHits, SpatialAppExt,
-    SpatialBounds, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin, SpatialIndexSystems,
-    SpatialJoin, SpatialQuery, SpatialQueryFilter, VisibleEntityList,
+    CullingCamera, NoSpatialIndex, PairEnded, PairStarted, RayCaster, RayCasterHits, RebuildMode,
+    SpatialAppExt, SpatialBounds, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin,
+    SpatialIndexSystems, SpatialJoin, SpatialQuery, SpatialQueryFilter, VisibleEntityList,
 };
 pub use crate::query::{CullMode, JoinMode, QueryWorkspace, RayHit, RayMode};
 pub use crate::tree::{ProxyId, RTree, TreeSettings};

@@ -1,8 +1,8 @@
-//! The plugin's rebuild (`SpatialIndexPlugin::rebuild_budget`): in a scene
-//! where entities teleport every frame, rebuilds are started and swapped
-//! in, and after every frame the index is valid and answers as the
-//! brute-force oracle does. With feature `parallel` and an
-//! `AsyncComputeTaskPool`, each rebuild's tiling runs on the pool.
+//! The plugin's rebuild (`SpatialIndexPlugin::rebuild`): in a scene where
+//! entities teleport every frame, rebuilds are started and swapped in, and
+//! after every frame the index is valid and answers as the brute-force
+//! oracle does; on Bevy's `AsyncComputeTaskPool` (feature `parallel`) and
+//! in slices on the calling thread.
 #![cfg(feature = "plugin")]
 
 use std::time::Duration;
@@ -78,21 +78,36 @@ fn teleporting_scene(plugin: SpatialIndexPlugin, count: usize, frames: usize) ->
     rebuilds
 }
 
+/// The default: on the task pool where the app has one (with feature
+/// `parallel`; the test gives it one), off otherwise.
 #[test]
-fn rebuilds_keep_the_answers_exact_and_are_swapped_in() {
+fn rebuilds_on_the_task_pool_keep_the_answers_exact() {
     #[cfg(feature = "parallel")]
     bevy_tasks::AsyncComputeTaskPool::get_or_init(|| {
         bevy_tasks::TaskPoolBuilder::new().num_threads(2).build()
     });
     let rebuilds = teleporting_scene(SpatialIndexPlugin::default(), 4_000, 120);
-    eprintln!("{rebuilds}");
+    if cfg!(feature = "parallel") {
+        assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
+    } else {
+        assert_eq!(rebuilds, 0, "no task pool without feature `parallel`");
+    }
+}
+
+#[test]
+fn rebuilds_in_slices_keep_the_answers_exact() {
+    let plugin = SpatialIndexPlugin {
+        rebuild: RebuildMode::InSlices(Duration::from_micros(200)),
+        ..SpatialIndexPlugin::default()
+    };
+    let rebuilds = teleporting_scene(plugin, 4_000, 120);
     assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
 }
 
 #[test]
-fn without_a_rebuild_budget_nothing_is_rebuilt() {
+fn rebuild_off_rebuilds_nothing() {
     let plugin = SpatialIndexPlugin {
-        rebuild_budget: None,
+        rebuild: RebuildMode::Off,
         ..SpatialIndexPlugin::default()
     };
     assert_eq!(teleporting_scene(plugin, 4_000, 40), 0);
@@ -101,7 +116,7 @@ fn without_a_rebuild_budget_nothing_is_rebuilt() {
 #[test]
 fn a_tiny_budget_still_finishes_rebuilds() {
     let plugin = SpatialIndexPlugin {
-        rebuild_budget: Some(Duration::from_nanos(1)),
+        rebuild: RebuildMode::InSlices(Duration::from_nanos(1)),
         ..SpatialIndexPlugin::default()
     };
     // One unit of work a frame (a median cut or a node): a rebuild of 600

@@ -139,7 +139,7 @@ pub struct MaintenanceWork {
     pub runs: u32,
     /// Nodes re-tiled.
     pub nodes_repacked: u64,
-    /// Rebuilds swapped in (see `SpatialIndexPlugin::rebuild_budget`).
+    /// Rebuilds swapped in (see `SpatialIndexPlugin::rebuild`).
     pub rebuilds: u32,
 }
 

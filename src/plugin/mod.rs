@@ -73,8 +73,6 @@ mod raycast;
 #[cfg(feature = "bevy")]
 mod transform;
 
-use std::time::Duration;
-
 use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
@@ -92,6 +90,7 @@ pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
 pub use filter::SpatialQueryFilter;
 pub use index::SpatialIndex;
 pub use join::{PairEnded, PairStarted, SpatialJoin};
+pub use maintenance::RebuildMode;
 pub use oracle::layer_oracle;
 pub use query_param::SpatialQuery;
 pub use raycast::{RayCaster, RayCasterHits};
@@ -133,14 +132,12 @@ pub struct SpatialIndexPlugin {
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
     /// repair in any one frame.
     pub optimize_budget: usize,
-    /// Time per layer per frame for a rebuild of the tree, started when
-    /// the changes since the last one reach a quarter of the entries, so
-    /// that the tree stays as fast as a fresh one however things move
-    /// (teleports, respawns, crowds). Its costly part runs on Bevy's
-    /// `AsyncComputeTaskPool` where the app has one (feature `parallel`);
-    /// the rest in slices of this budget. `None` turns it off (repair
-    /// alone). 0.25 ms by default.
-    pub rebuild_budget: Option<Duration>,
+    /// How each layer's tree is rebuilt when the changes since its last
+    /// rebuild reach a quarter of its entries, so that it stays near the
+    /// speed of a fresh one in long sessions: by default on Bevy's
+    /// `AsyncComputeTaskPool` where the app has one (feature `parallel`),
+    /// and not at all otherwise. See [`RebuildMode`].
+    pub rebuild: RebuildMode,
 }
 
 impl Default for SpatialIndexPlugin {
@@ -149,7 +146,7 @@ impl Default for SpatialIndexPlugin {
             tree: TreeSettings::default(),
             schedule: PostUpdate.intern(),
             optimize_budget: 64,
-            rebuild_budget: Some(Duration::from_micros(250)),
+            rebuild: RebuildMode::default(),
         }
     }
 }
@@ -160,7 +157,7 @@ pub(crate) struct SpatialIndexConfig {
     tree: TreeSettings,
     schedule: InternedScheduleLabel,
     optimize_budget: usize,
-    rebuild_budget: Option<Duration>,
+    rebuild: RebuildMode,
 }
 
 /// The plugin's system sets, run in this order in the plugin's schedule.
@@ -226,7 +223,7 @@ impl Plugin for SpatialIndexPlugin {
             tree,
             schedule: self.schedule,
             optimize_budget: self.optimize_budget,
-            rebuild_budget: self.rebuild_budget,
+            rebuild: self.rebuild,
         })
         .init_resource::<SpatialDiagnostics>()
         .init_resource::<DiagnosticsSink>()
