@@ -296,6 +296,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Reports every entry below `index` to every view alive in `mask`, with
     /// no further test: the subtree is inside all their planes. Same order
     /// as the tested traversal (children pushed in lane order).
+    ///
+    /// In two passes, so that cache misses overlap instead of queueing: the
+    /// internal nodes first, gathering the leaves in reporting order and
+    /// starting their loads; then the leaves, each reported while the keys
+    /// of the leaves [`KEYS_AHEAD`] later load (keys live apart from the
+    /// leaves, one line each when the tree is cold).
     fn emit_subtree<V>(
         &self,
         index: u32,
@@ -308,21 +314,38 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     {
         let alive = alive_views(mask);
         let mut stack = std::mem::take(&mut ws.stack);
+        let mut leaves = std::mem::take(&mut ws.leaves);
         stack.clear();
-        stack.push(index);
-        let mut flow = ControlFlow::Continue(());
-        'nodes: while let Some(index) = stack.pop() {
+        leaves.clear();
+        if self.node(index).is_leaf() {
+            leaves.push(index);
+        } else {
+            stack.push(index);
+        }
+        while let Some(index) = stack.pop() {
             let node = self.node(index);
             ws.stats.nodes_visited += 1;
-            if !node.is_leaf() {
-                // A subtree inside every view is read whole: start loading
-                // its nodes while the ones before them are emitted.
-                for &child in &node.child[..node.len()] {
-                    self.prefetch_node(child);
-                }
-                stack.extend_from_slice(&node.child[..node.len()]);
-                continue;
+            let children = &node.child[..node.len()];
+            for &child in children {
+                self.prefetch_node(child);
             }
+            if node.level == 1 {
+                // A stack would report the last child first.
+                leaves.extend(children.iter().rev());
+            } else {
+                stack.extend_from_slice(children);
+            }
+        }
+        for &leaf in leaves.iter().take(KEYS_AHEAD) {
+            self.prefetch_keys_of_leaf(self.node(leaf));
+        }
+        let mut flow = ControlFlow::Continue(());
+        'leaves: for (n, &leaf) in leaves.iter().enumerate() {
+            if let Some(&ahead) = leaves.get(n + KEYS_AHEAD) {
+                self.prefetch_keys_of_leaf(self.node(ahead));
+            }
+            let node = self.node(leaf);
+            ws.stats.nodes_visited += 1;
             for lane in 0..node.len() {
                 let (key, aabb) = (self.key_of(node.child[lane]), node.lane_box(lane));
                 let mut views = alive;
@@ -331,15 +354,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     views &= views - 1;
                     flow = visit(view, key, &aabb);
                     if flow.is_break() {
-                        break 'nodes;
+                        break 'leaves;
                     }
                 }
             }
         }
         ws.stack = stack;
+        ws.leaves = leaves;
         flow
     }
 }
+
+/// How many leaves ahead of the one reported [`RTree::emit_subtree`] asks
+/// for the keys.
+const KEYS_AHEAD: usize = 4;
 
 /// The views alive in `mask`, each with its index and the planes it still
 /// has to test.

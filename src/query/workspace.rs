@@ -30,6 +30,8 @@ pub struct QueryWorkspace {
     pub(crate) stack: Vec<u32>,
     /// Frustum traversal stack: node index and per-view plane masks.
     pub(crate) cull_stack: Vec<(u32, u64)>,
+    /// The leaves of a subtree reported whole, in the order they report.
+    pub(crate) leaves: Vec<u32>,
     /// Single-ray traversal: a stack of node indices and their entry `t`,
     /// and where the last walked ray started.
     pub(crate) ray_walk: super::ray::RayWalkScratch,

@@ -51,6 +51,21 @@ impl<K, const W: usize> RTree<K, W> {
         }
     }
 
+    /// Asks the CPU to start loading the keys of a leaf's entries, which
+    /// live apart from the leaf (one array indexed by proxy) and, in a
+    /// tree loaded in any other order than space, each on its own line:
+    /// read one after another when the tree is cold, they would each wait
+    /// their turn. A hint only; a node index outside the pool is ignored.
+    #[inline(always)]
+    pub(crate) fn prefetch_keys_of_leaf(&self, leaf: &super::node::Node<W>) {
+        let keys = self.keys.as_ptr();
+        for &slot in &leaf.child[..leaf.len()] {
+            // No bounds check: a prefetch of any address is sound (see
+            // `prefetch_address`), and a leaf's slots index `keys`.
+            prefetch_address(keys.wrapping_add(slot as usize).cast());
+        }
+    }
+
     /// Asks the CPU to start loading the record of proxy `index`; an index
     /// outside the records is ignored.
     #[inline(always)]
@@ -65,23 +80,30 @@ impl<K, const W: usize> RTree<K, W> {
 /// width, one for a proxy record).
 #[inline(always)]
 fn prefetch_lines<T>(value: &T) {
+    let base = std::ptr::from_ref(value).cast::<i8>();
+    for offset in (0..std::mem::size_of::<T>()).step_by(64) {
+        prefetch_address(base.wrapping_add(offset));
+    }
+}
+
+/// Requests the cache line holding `address`, which need not point into
+/// any allocation.
+#[inline(always)]
+fn prefetch_address(address: *const i8) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        let base = std::ptr::from_ref(value).cast::<i8>();
-        for offset in (0..std::mem::size_of::<T>()).step_by(64) {
-            #[allow(unsafe_code)]
-            // SAFETY: `_mm_prefetch` is only a hint to the cache: it never
-            // faults, reads nothing into a register and writes nothing, so
-            // any address is sound. The addresses are inside `value` anyway.
-            // SSE, which it needs, is part of every x86_64 target.
-            unsafe {
-                _mm_prefetch::<_MM_HINT_T0>(base.wrapping_add(offset));
-            }
+        #[allow(unsafe_code)]
+        // SAFETY: `_mm_prefetch` is only a hint to the cache: it never
+        // faults, reads nothing into a register and writes nothing, so any
+        // address is sound, in an allocation or not. SSE, which it needs,
+        // is part of every x86_64 target.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(address);
         }
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = value;
+    let _ = address;
 }
 
 #[cfg(test)]
