@@ -16,176 +16,26 @@
 //! candidate to Bevy's tests; `--world-box` also prints what the tree's
 //! candidates alone would list, and the time of that cull).
 
+#[path = "common/bevy_town.rs"]
+mod bevy_town;
+
 use std::any::TypeId;
 use std::time::Instant;
 
 use bevy_app::prelude::*;
-use bevy_asset::Assets;
 use bevy_camera::primitives::Aabb;
-use bevy_camera::visibility::{ViewVisibility, VisibilitySystems, VisibleEntities};
-use bevy_camera::{
-    Camera3d, CameraPlugin, CameraProjection, OrthographicProjection, PerspectiveProjection,
-    Projection, ScalingMode,
-};
+use bevy_camera::visibility::{ViewVisibility, VisibleEntities};
+use bevy_camera::{Camera3d, CameraProjection, OrthographicProjection, Projection, ScalingMode};
 use bevy_ecs::prelude::*;
-use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
-use bevy_mesh::{Mesh, Mesh3d};
-use bevy_rtree::plugin::{
-    BevyVisibilityPlugin, RenderableSyncSystems, SpatialIndexPlugin, SpatialIndexSystems,
-};
-use bevy_rtree::scene::{SceneRng, TownScene};
-use bevy_transform::TransformSystems;
+use bevy_mesh::Mesh3d;
+use bevy_rtree::scene::SceneRng;
+#[cfg(feature = "bevy_light")]
+use bevy_rtree::scene::TownScene;
+use bevy_town::{Motion, Mover, app, block, town};
 use bevy_transform::prelude::*;
-use glam::{EulerRot, Quat, Vec3, Vec3A};
-
-/// When this frame's visibility step started, and how long the last took;
-/// likewise for the lights' step.
-#[derive(Resource, Default)]
-struct StepTimer {
-    start: Option<Instant>,
-    last_us: f64,
-    #[cfg_attr(not(feature = "bevy_light"), allow(dead_code))]
-    light_start: Option<Instant>,
-    light_us: f64,
-}
-
-#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
-struct StepStart;
-
-fn start_step(mut timer: ResMut<StepTimer>) {
-    timer.start = Some(Instant::now());
-}
-
-fn stop_step(mut timer: ResMut<StepTimer>) {
-    if let Some(start) = timer.start.take() {
-        timer.last_us = start.elapsed().as_secs_f64() * 1e6;
-    }
-}
-
 #[cfg(feature = "bevy_light")]
-fn start_light_step(mut timer: ResMut<StepTimer>) {
-    timer.light_start = Some(Instant::now());
-}
-
-#[cfg(feature = "bevy_light")]
-fn stop_light_step(mut timer: ResMut<StepTimer>) {
-    if let Some(start) = timer.light_start.take() {
-        timer.light_us = start.elapsed().as_secs_f64() * 1e6;
-    }
-}
-
-/// Bevy's `LightPlugin` (which needs assets and images), with timers
-/// around its shadow visibility step.
-#[cfg(feature = "bevy_light")]
-fn add_lights(app: &mut App) {
-    use bevy_asset::AssetApp;
-    use bevy_light::SimulationLightSystems;
-    app.add_plugins((bevy_asset::AssetPlugin::default(), bevy_light::LightPlugin))
-        .init_asset::<bevy_image::Image>()
-        .add_systems(
-            PostUpdate,
-            (
-                start_light_step
-                    .after(VisibilitySystems::CheckVisibility)
-                    .after(SimulationLightSystems::UpdateLightFrusta)
-                    .before(SimulationLightSystems::CheckLightVisibility),
-                stop_light_step
-                    .after(SimulationLightSystems::CheckLightVisibility)
-                    .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
-            ),
-        );
-}
-
-/// A mover: a fresh tenth (or hundredth) of them moves each frame.
-#[derive(Component)]
-struct Mover {
-    step: Vec3,
-    slot: u32,
-}
-
-/// The scene's movers and cameras, as a game would move them: through
-/// queries.
-#[derive(Resource)]
-struct Motion {
-    frame: u32,
-    /// One entity in `period` moves each frame.
-    period: u32,
-    /// Camera yaw per frame, in radians.
-    turn: f32,
-}
-
-fn move_entities(mut motion: ResMut<Motion>, mut movers: Query<(&Mover, &mut Transform)>) {
-    motion.frame += 1;
-    let (frame, period) = (motion.frame, motion.period);
-    for (mover, mut transform) in &mut movers {
-        if mover.slot % period == frame % period {
-            transform.translation += mover.step;
-        }
-    }
-}
-
-fn turn_cameras(motion: Res<Motion>, mut cameras: Query<&mut Transform, With<Camera3d>>) {
-    for mut transform in &mut cameras {
-        transform.rotate_y(motion.turn);
-    }
-}
-
-/// A headless App with Bevy's cameras and transforms (and lights if
-/// `lights`); the index serves visibility if `ours`.
-fn app(ours: bool, lights: bool) -> App {
-    let mut app = App::new();
-    app.add_plugins((TransformPlugin, CameraPlugin))
-        .insert_resource(Assets::<Mesh>::default())
-        .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
-        .init_resource::<StepTimer>()
-        .add_systems(Update, (move_entities, turn_cameras));
-    #[cfg(feature = "bevy_light")]
-    if lights {
-        app.add_plugins(TaskPoolPlugin::default());
-        add_lights(&mut app);
-    }
-    #[cfg(not(feature = "bevy_light"))]
-    let _ = lights;
-    if ours {
-        app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
-            .configure_sets(
-                PostUpdate,
-                StepStart
-                    .after(TransformSystems::Propagate)
-                    .after(VisibilitySystems::CalculateBounds)
-                    .after(VisibilitySystems::VisibilityPropagate)
-                    .before(RenderableSyncSystems),
-            )
-            .add_systems(
-                PostUpdate,
-                (
-                    start_step.in_set(StepStart),
-                    stop_step
-                        .after(VisibilitySystems::CheckVisibility)
-                        .after(SpatialIndexSystems::Maintain),
-                ),
-            );
-    } else {
-        app.configure_sets(
-            PostUpdate,
-            StepStart
-                .after(TransformSystems::Propagate)
-                .after(VisibilitySystems::CalculateBounds)
-                .after(VisibilitySystems::VisibilityPropagate)
-                .before(VisibilitySystems::CheckVisibility),
-        )
-        .add_systems(
-            PostUpdate,
-            (
-                start_step.in_set(StepStart),
-                stop_step.after(VisibilitySystems::CheckVisibility),
-            ),
-        );
-    }
-    app.finish();
-    app.cleanup();
-    app
-}
+use glam::Quat;
+use glam::{Vec3, Vec3A};
 
 /// One case: what to spawn and how it moves.
 struct Case {
@@ -196,56 +46,6 @@ struct Case {
     /// One entity in `period` moves each frame.
     period: u32,
     turn: f32,
-}
-
-/// The standard town as Bevy meshes: each box a mesh with its half
-/// extents as `Aabb`, at a random yaw; plus `cameras` perspective cameras
-/// at the standard eye, facing apart.
-fn town(world: &mut World, seed: u64, cameras: usize) {
-    let scene = TownScene::new(TownScene::STANDARD_COUNT, seed);
-    let mut rng = SceneRng::new(seed ^ 0x70_57);
-    let entities: Vec<_> = scene
-        .boxes()
-        .iter()
-        .enumerate()
-        .map(|(i, b)| {
-            let half = (b.max - b.min) * 0.5;
-            let yaw = Quat::from_rotation_y(rng.range(0.0, std::f32::consts::TAU));
-            let step = Vec3::new(rng.range(-0.1, 0.1), 0.0, rng.range(-0.1, 0.1));
-            (
-                Mesh3d::default(),
-                Aabb {
-                    center: Vec3A::ZERO,
-                    half_extents: half.into(),
-                },
-                Transform::from_translation((b.min + b.max) * 0.5).with_rotation(yaw),
-                Mover {
-                    step,
-                    slot: i as u32,
-                },
-            )
-        })
-        .collect();
-    world.spawn_batch(entities);
-    for c in 0..cameras {
-        let yaw = std::f32::consts::TAU * c as f32 / cameras as f32;
-        world.spawn((
-            Camera3d::default(),
-            Projection::Perspective(PerspectiveProjection {
-                fov: 60f32.to_radians(),
-                aspect_ratio: 16.0 / 9.0,
-                near: 0.1,
-                far: 500.0,
-                ..PerspectiveProjection::default()
-            }),
-            Transform::from_translation(TownScene::eye()).with_rotation(Quat::from_euler(
-                EulerRot::YXZ,
-                yaw,
-                -0.17,
-                0.0,
-            )),
-        ));
-    }
 }
 
 /// The town with 16 shadow-casting point lights of 15 m range in front of
@@ -332,21 +132,6 @@ fn large_map(world: &mut World, seed: u64) {
         Transform::from_xyz(SIDE / 2.0, 500.0, SIDE / 2.0)
             .looking_at(Vec3::new(SIDE / 2.0, 0.0, SIDE / 2.0), Vec3::NEG_Z),
     ));
-}
-
-/// Runs `frames` frames and returns the median step times in µs: the
-/// visibility step, and the lights' step.
-fn block(app: &mut App, frames: usize) -> (f64, f64) {
-    let (mut steps, mut lights): (Vec<f64>, Vec<f64>) = (0..frames)
-        .map(|_| {
-            app.update();
-            let timer = app.world().resource::<StepTimer>();
-            (timer.last_us, timer.light_us)
-        })
-        .unzip();
-    steps.sort_by(f64::total_cmp);
-    lights.sort_by(f64::total_cmp);
-    (steps[frames / 2], lights[frames / 2])
 }
 
 /// What both Apps made of the last frame: the visible count and whether

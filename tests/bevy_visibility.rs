@@ -348,6 +348,14 @@ fn cameras_see_what_bevy_sees_every_frame() {
         );
         let diagnostics = twins.ours.world().resource::<SpatialDiagnostics>();
         assert!(diagnostics.culling.runs > 0);
+        // The last frame's work: most candidates proven, the rest and the
+        // entities outside the tree left to Bevy's tests.
+        let work = diagnostics.bevy_visibility;
+        assert!(
+            work.proven > 0 && work.proven <= work.candidates,
+            "{work:?}"
+        );
+        assert!(work.tested >= work.candidates - work.proven, "{work:?}");
     }
 }
 
@@ -373,6 +381,16 @@ fn cameras_without_the_inside_proof_see_what_bevy_sees() {
         twins.mutate();
     }
     assert!(seen > 2_000, "the cameras see enough to compare: {seen}");
+    let work = twins
+        .ours
+        .world()
+        .resource::<SpatialDiagnostics>()
+        .bevy_visibility;
+    assert_eq!(work.proven, 0, "nothing proven with the proof off");
+    assert!(
+        work.candidates > 0 && work.tested >= work.candidates,
+        "{work:?}"
+    );
 }
 
 /// Entities spread over 4 km, cameras that each see a small part of them:

@@ -10,7 +10,13 @@
 //! 3. Chebyshev against Euclidean joins: time against extra pairs;
 //! 4. node width 4, 8 and 16: build, update, box query, cull, ray and join
 //!    times;
-//! 5. batched `cast_rays` against a loop of `cast_ray`: time, same answers.
+//! 5. batched `cast_rays` against a loop of `cast_ray`: time, same answers;
+//! 6. a long session with teleports: the jump limit and the rebuild
+//!    (in slices, or on another thread as the plugin runs it), maintenance
+//!    time against the work queries then do;
+//! 7. with feature `bevy_camera`, Bevy's camera visibility from the index:
+//!    the world boxes alone, Bevy's tests on every candidate, the inside
+//!    proof, in time and in work.
 //!
 //! Every tree lives through the same frames: one scene advances, and every
 //! contender is updated with the same moved boxes, in an order that rotates
@@ -28,6 +34,9 @@
 //! tables go to stdout and `docs/accuracy_cost.md`, the plots to
 //! `docs/accuracy_cost_*.svg`.
 
+#[cfg(feature = "bevy_camera")]
+mod bevy_visibility;
+mod long_session;
 mod report;
 mod svg;
 
@@ -1009,7 +1018,21 @@ fn main() {
     (widths.rays_ms, widths.join_ms) =
         measure_width_queries(width_trees, &joins, &ray_sets, &ray_truth, &pairs);
 
+    progress.say("a long session with teleports");
+    let sessions = long_session::measure(count);
+    #[cfg(feature = "bevy_camera")]
+    let bevy_section = {
+        progress.say("Bevy's visibility three ways");
+        let mut s = String::new();
+        bevy_visibility::markdown(&bevy_visibility::measure(), &mut s);
+        s
+    };
+    #[cfg(not(feature = "bevy_camera"))]
+    let bevy_section = String::new();
+
     let report = report::Report {
+        sessions: &sessions,
+        bevy_section,
         count,
         frames,
         warmup,

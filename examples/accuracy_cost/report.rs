@@ -15,6 +15,10 @@ use crate::{
 
 /// Everything the tables and plots are made of.
 pub struct Report<'a> {
+    /// Section 6, the long session.
+    pub sessions: &'a [crate::long_session::SessionRow],
+    /// Section 7's markdown (feature `bevy_camera`), or empty.
+    pub bevy_section: String,
     pub count: usize,
     pub frames: usize,
     pub warmup: usize,
@@ -88,6 +92,9 @@ fn percent(part: u64, whole: u64) -> String {
 impl Report<'_> {
     fn command(&self) -> String {
         let mut command = "cargo run --release --example accuracy_cost".to_string();
+        if !self.bevy_section.is_empty() {
+            command.push_str(" --features bevy_camera");
+        }
         let mut args = String::new();
         if self.count != TownScene::STANDARD_COUNT {
             let _ = write!(args, " --count {}", self.count);
@@ -150,6 +157,8 @@ impl Report<'_> {
         self.joins(&mut s);
         self.node_width(&mut s);
         self.rays(&mut s);
+        crate::long_session::markdown(self.sessions, self.count, &mut s);
+        s.push_str(&self.bevy_section);
         s
     }
 

@@ -143,6 +143,33 @@ pub struct MaintenanceWork {
     pub rebuilds: u32,
 }
 
+/// How `BevyVisibilityPlugin` decided its cameras this frame: what the
+/// tree proved and what it left to Bevy's own tests. Zero without the
+/// plugin (feature `bevy_camera`).
+///
+/// ```
+/// use bevy_rtree::plugin::BevyVisibilityWork;
+///
+/// let work = BevyVisibilityWork { candidates: 100, proven: 90, tested: 12 };
+/// // 10 candidates and 2 entities outside the tree took Bevy's tests.
+/// assert_eq!(work.candidates - work.proven, 10);
+/// ```
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BevyVisibilityWork {
+    /// The tree's candidates, summed over the cameras that cull.
+    pub candidates: u64,
+    /// Candidates the tree proved inside every plane Bevy tests: they skip
+    /// Bevy's frustum tests.
+    pub proven: u64,
+    /// Entity-camera pairs decided by Bevy's own tests one by one: the
+    /// candidates not proven, and the entities outside the tree (no
+    /// `Aabb`, `NoFrustumCulling`, an unusable box) for every camera that
+    /// culls.
+    pub tested: u64,
+}
+
 /// Per-frame counters of what the plugin ran, published at the end of every
 /// frame (in `Last`): read them after the frame, or in the next one.
 ///
@@ -178,6 +205,8 @@ pub struct SpatialDiagnostics {
     pub rays: QueryWork,
     /// Registered spatial joins.
     pub joins: QueryWork,
+    /// Bevy's camera visibility served by the index.
+    pub bevy_visibility: BevyVisibilityWork,
     /// Invalid-box skips since the plugin was added (never reset).
     pub invalid_total: u64,
 }

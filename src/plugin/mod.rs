@@ -86,7 +86,9 @@ pub use bevy_visibility::{
 };
 pub use bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
 pub use culling::{CullingCamera, VisibleEntityList};
-pub use diagnostics::{MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork};
+pub use diagnostics::{
+    BevyVisibilityWork, MaintenanceWork, QueryWork, SpatialDiagnostics, SyncWork,
+};
 pub use filter::SpatialQueryFilter;
 pub use index::SpatialIndex;
 pub use join::{PairEnded, PairStarted, SpatialJoin};

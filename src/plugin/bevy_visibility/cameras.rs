@@ -111,6 +111,8 @@ struct View {
     sight: Sight,
     /// Where the camera is, which the tree's cull is rebased on.
     eye: Vec3,
+    /// How many of its candidates the tree proved inside.
+    proven: usize,
     /// Its candidates from the tree, and whether the tree proved each
     /// inside every plane Bevy tests (empty for `no_culling`).
     candidates: Vec<(Entity, bool)>,
@@ -185,6 +187,7 @@ pub(super) fn check_visibility_from_index(
         views.push(View {
             sight,
             eye: transform.map_or(Vec3::ZERO, GlobalTransform::translation),
+            proven: 0,
             candidates: listed,
             visible,
         });
@@ -194,6 +197,7 @@ pub(super) fn check_visibility_from_index(
     if !settings.prove_inside {
         for view in &mut views {
             view.candidates.iter_mut().for_each(|c| c.1 = false);
+            view.proven = 0;
         }
     }
     let count = entities.p0().iter().len();
@@ -264,13 +268,23 @@ pub(super) fn check_visibility_from_index(
             std::mem::swap(visible.get_mut(*class), list);
         }
     }
+    if culled_views > 0 {
+        let culling = views.iter().filter(|v| !v.sight.no_culling);
+        let candidates: usize = culling.clone().map(|v| v.candidates.len()).sum();
+        let proven: usize = culling.map(|v| v.proven).sum();
+        let tested = candidates - proven + one_by_one.len() * culled_views;
+        let workspaces = &mut scratch.workspaces;
+        sink.add(|d| {
+            d.culling.record_workspaces(culled_views, workspaces);
+            let work = &mut d.bevy_visibility;
+            work.candidates += candidates as u64;
+            work.proven += proven as u64;
+            work.tested += tested as u64;
+        });
+    }
     scratch.views = views;
     scratch.one_by_one = one_by_one;
     scratch.views.append(&mut spare);
-    if culled_views > 0 {
-        let workspaces = &mut scratch.workspaces;
-        sink.add(|d| d.culling.record_workspaces(culled_views, workspaces));
-    }
 }
 
 /// Each culling view's candidates from the tree; on a task pool of several
@@ -287,7 +301,7 @@ fn cull_views(
     let cull = |view: &mut View, ws: &mut QueryWorkspace| {
         if !view.sight.no_culling {
             let frustum = &view.sight.frustum;
-            candidates(
+            view.proven = candidates(
                 index,
                 frustum,
                 UNTESTED_BY_CAMERAS,
@@ -520,9 +534,11 @@ pub(super) fn candidates(
     eye: Vec3,
     ws: &mut QueryWorkspace,
     out: &mut Vec<(Entity, bool)>,
-) {
+) -> usize {
     let tree = index.tree();
-    let Some(bounds) = tree.bounds() else { return };
+    let Some(bounds) = tree.bounds() else {
+        return 0;
+    };
     let reach =
         bounds.min.abs().max(bounds.max.abs()).max_element() * 3.0 + eye.abs().max_element();
     let (Some(loose), Some(tight)) = (
@@ -532,11 +548,14 @@ pub(super) fn candidates(
         // A frustum Bevy's tests cannot decide either (NaN planes): every
         // entry is a candidate, and Bevy's tests say what they say.
         out.extend(tree.iter().map(|(_, entity, _)| (entity, false)));
-        return;
+        return 0;
     };
+    let mut proven_count = 0;
     tree.visit_visible_proving(&loose, &tight, ws, |entity, proven| {
+        proven_count += usize::from(proven);
         out.push((entity, proven))
     });
+    proven_count
 }
 
 /// Bevy's planes but `untested`, re-based on `eye` and moved outward
