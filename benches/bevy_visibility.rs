@@ -20,7 +20,6 @@
 mod bevy_town;
 
 use std::any::TypeId;
-use std::time::Instant;
 
 use bevy_app::prelude::*;
 use bevy_camera::primitives::Aabb;
@@ -31,7 +30,7 @@ use bevy_mesh::Mesh3d;
 use bevy_rtree::scene::SceneRng;
 #[cfg(feature = "bevy_light")]
 use bevy_rtree::scene::TownScene;
-use bevy_town::{Motion, Mover, app, block, town};
+use bevy_town::{Motion, Mover, app, block, town, world_boxes_alone};
 use bevy_transform::prelude::*;
 #[cfg(feature = "bevy_light")]
 use glam::Quat;
@@ -246,43 +245,20 @@ fn run(case: &Case, rounds: usize, frames: usize, options: Options) {
     }
 }
 
-/// The tree's candidates for each camera without Bevy's tests (the world
-/// boxes through Bevy's planes but the far one, conservative): how many
+/// The tree's candidates for each camera without Bevy's tests: how many
 /// more than Bevy lists, and the median time of the cull.
 fn world_box_alone(name: &str, ours: &mut App) {
-    use bevy_camera::primitives::Frustum as BevyFrustum;
-    use bevy_rtree::plugin::{Renderable, SpatialIndex};
-    use bevy_rtree::{CullMode, Frustum, HalfSpace, QueryWorkspace};
     let world = ours.world_mut();
-    let mut cameras = world.query::<(&BevyFrustum, &GlobalTransform, &VisibleEntities)>();
-    let views: Vec<(Frustum, usize)> = cameras
+    let mut cameras = world.query::<&VisibleEntities>();
+    let listed: usize = cameras
         .iter(world)
-        .map(|(frustum, transform, listed)| {
-            let whole = Frustum::from_bevy(frustum, transform.translation()).unwrap();
-            let mut planes = *whole.planes();
-            planes[5] = HalfSpace::INACTIVE;
-            let listed = listed.get(TypeId::of::<Mesh3d>()).len();
-            (Frustum::new(whole.eye(), planes).unwrap(), listed)
-        })
-        .collect();
-    let tree = world.resource::<SpatialIndex<Renderable>>().tree();
-    let frustums: Vec<Frustum> = views.iter().map(|v| v.0).collect();
-    let listed: usize = views.iter().map(|v| v.1).sum();
-    let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-    let mut times = Vec::new();
-    for _ in 0..15 {
-        out.iter_mut().for_each(Vec::clear);
-        let start = Instant::now();
-        tree.visible_into(&frustums, CullMode::Conservative, &mut ws, &mut out);
-        times.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    let candidates: usize = out.iter().map(Vec::len).sum();
-    times.sort_by(f64::total_cmp);
+        .map(|listed| listed.get(TypeId::of::<Mesh3d>()).len())
+        .sum();
+    let (ms, candidates) = world_boxes_alone(ours);
     println!(
         "{name}: world boxes alone list {candidates} for Bevy's {listed} ({:+.1} %), \
-         the tree's cull {:.3} ms",
+         the tree's cull {ms:.3} ms",
         (candidates as f64 / listed.max(1) as f64 - 1.0) * 100.0,
-        times[times.len() / 2]
     );
 }
 

@@ -12,16 +12,12 @@ mod bevy_town;
 
 use std::any::TypeId;
 use std::fmt::Write as _;
-use std::time::Instant;
 
 use bevy_app::App;
-use bevy_camera::primitives::Frustum as BevyFrustum;
 use bevy_camera::visibility::VisibleEntities;
 use bevy_mesh::Mesh3d;
-use bevy_rtree::plugin::{BevyVisibilitySettings, Renderable, SpatialDiagnostics, SpatialIndex};
-use bevy_rtree::{CullMode, Frustum, HalfSpace, QueryWorkspace};
-use bevy_town::{Motion, app, block, town};
-use bevy_transform::prelude::GlobalTransform;
+use bevy_rtree::plugin::{BevyVisibilitySettings, SpatialDiagnostics};
+use bevy_town::{Motion, app, block, town, world_boxes_alone};
 
 use crate::{SEED, median};
 
@@ -128,34 +124,6 @@ fn listed(app: &mut App) -> usize {
         .iter(world)
         .map(|v| v.get(TypeId::of::<Mesh3d>()).len())
         .sum()
-}
-
-/// The tree's conservative cull through Bevy's planes but the far one (the
-/// plane Bevy's camera test skips): its median time in ms and how many
-/// entity-camera pairs it lists.
-fn world_boxes_alone(app: &mut App) -> (f64, usize) {
-    let world = app.world_mut();
-    let mut cameras = world.query::<(&BevyFrustum, &GlobalTransform)>();
-    let frustums: Vec<Frustum> = cameras
-        .iter(world)
-        .map(|(frustum, transform)| {
-            let whole =
-                Frustum::from_bevy(frustum, transform.translation()).expect("a camera's frustum");
-            let mut planes = *whole.planes();
-            planes[5] = HalfSpace::INACTIVE;
-            Frustum::new(whole.eye(), planes).expect("valid planes")
-        })
-        .collect();
-    let tree = world.resource::<SpatialIndex<Renderable>>().tree();
-    let (mut ws, mut out) = (QueryWorkspace::default(), Vec::new());
-    let mut times = Vec::new();
-    for _ in 0..15 {
-        out.iter_mut().for_each(Vec::clear);
-        let start = Instant::now();
-        tree.visible_into(&frustums, CullMode::Conservative, &mut ws, &mut out);
-        times.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    (median(&times), out.iter().map(Vec::len).sum())
 }
 
 /// The section's markdown (nothing without rows).
