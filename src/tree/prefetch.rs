@@ -59,9 +59,20 @@ impl<K, const W: usize> RTree<K, W> {
     #[inline(always)]
     pub(crate) fn prefetch_keys_of_leaf(&self, leaf: &super::node::Node<W>) {
         let keys = self.keys.as_ptr();
-        for &slot in &leaf.child[..leaf.len()] {
-            // No bounds check: a prefetch of any address is sound (see
-            // `prefetch_address`), and a leaf's slots index `keys`.
+        let slots = &leaf.child[..leaf.len()];
+        let (Some(&first), Some(&last)) = (slots.first(), slots.last()) else {
+            return;
+        };
+        // No bounds checks: a prefetch of any address is sound (see
+        // `prefetch_address`), and a leaf's slots index `keys`.
+        if last.abs_diff(first) as usize == slots.len() - 1 {
+            // A leaf as bulk loading fills it (slots given in leaf order):
+            // its keys are one run, a line or two.
+            prefetch_address(keys.wrapping_add(first as usize).cast());
+            prefetch_address(keys.wrapping_add(last as usize).cast());
+            return;
+        }
+        for &slot in slots {
             prefetch_address(keys.wrapping_add(slot as usize).cast());
         }
     }
