@@ -19,7 +19,7 @@ mod handle;
 mod insert;
 pub(crate) mod node;
 mod optimize;
-mod prefetch;
+pub(crate) mod prefetch;
 mod rebuild;
 mod rebuild_away;
 mod remove;

@@ -90,7 +90,7 @@ impl<K, const W: usize> RTree<K, W> {
 /// Requests every cache line of `value` (eight for a node of the default
 /// width, one for a proxy record).
 #[inline(always)]
-fn prefetch_lines<T>(value: &T) {
+pub(crate) fn prefetch_lines<T>(value: &T) {
     let base = std::ptr::from_ref(value).cast::<i8>();
     for offset in (0..std::mem::size_of::<T>()).step_by(64) {
         prefetch_address(base.wrapping_add(offset));

@@ -21,6 +21,7 @@ use crate::geometry::{Frustum, HalfSpace};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
+use crate::tree::prefetch::prefetch_lines;
 
 /// What Bevy's culling reads of an entity (the same query as its own).
 type Culled<'a> = (
@@ -59,10 +60,12 @@ type OutsideTheTree = (
     Or<(Without<BevyAabb>, With<NoFrustumCulling>)>,
 );
 
-/// How many candidates ahead of the one decided are read, so that their
-/// cache misses overlap with the decisions in between (in a 1,000,000
-/// entity map the look-ups of 20,000 candidates took 3.6 ms without and
-/// 3.15 ms with).
+/// How many candidates ahead of the one decided are looked up, and their
+/// rows' data requested, so that their cache misses overlap with the
+/// decisions in between (in a 1,000,000 entity map the look-ups of 20,000
+/// candidates took 3.6 ms with none; reading the entity's row eight ahead
+/// made the step 7.33 → 6.53 ms, prefetching its components' data too
+/// about 0.5 ms less again; sixteen ahead measured the same as eight).
 const LOOK_AHEAD: usize = 8;
 
 /// Cameras decided in one pass over the entities (two bits each in a
@@ -231,9 +234,15 @@ pub(super) fn check_visibility_from_index(
             let mut proven = entities.p1();
             for (i, &(entity, inside)) in candidates.iter().enumerate() {
                 if let Some(&(ahead, _)) = candidates.get(i + LOOK_AHEAD)
-                    && let Ok(item) = proven.get(ahead)
+                    && let Ok((inherited, view_visibility, class, ..)) = proven.get(ahead)
                 {
-                    std::hint::black_box((item.0, item.1));
+                    // The look-up found the rows; the data itself starts
+                    // loading now, to be there when its turn comes.
+                    prefetch_lines(inherited);
+                    prefetch_lines(view_visibility);
+                    if let Some(class) = class {
+                        prefetch_lines(class);
+                    }
                 }
                 if inside && let Ok(item) = proven.get_mut(entity) {
                     decide_proven(&view.sight, &mut view.visible, entity, item, ranges);
