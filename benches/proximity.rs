@@ -383,6 +383,7 @@ fn bench_all(cr: &mut Criterion) {
     );
     let contenders = setup();
     check(&contenders);
+    cold_ratios(&contenders);
     bench_nearest(cr, &contenders);
     bench_sphere(cr, &contenders);
 }
@@ -393,3 +394,78 @@ criterion_group! {
     targets = bench_all
 }
 criterion_main!(benches);
+
+/// The two queries with cold caches, as a game frame meets the tree:
+/// before each timed call (1,000 queries) a buffer several times the
+/// last-level cache is streamed through (`common::paired::paired_ratio_cold`),
+/// bevy_rtree against rstar for the nearest and against parry3d for the
+/// spheres. Printed and written to
+/// `target/criterion/proximity_cold_ratios.md`.
+fn cold_ratios(c: &Contenders) {
+    use common::paired::paired_ratio_cold;
+    const ROUNDS: usize = 31;
+    let (mut ws, mut neighbours, mut out) = (QueryWorkspace::default(), Vec::new(), Vec::new());
+    let nearest = paired_ratio_cold(
+        ROUNDS,
+        |_| {
+            out.clear();
+            for &p in &c.points {
+                let result = c
+                    .bevy
+                    .tree
+                    .nearest_into(p, K, None, &mut ws, &mut neighbours);
+                result.expect("valid point");
+                out.extend(neighbours.iter().map(|n| n.key));
+            }
+            out.len()
+        },
+        |_| {
+            let mut keys = Vec::new();
+            for &p in &c.points {
+                rstar_nearest(&c.rstar, p, &mut keys);
+            }
+            keys.len()
+        },
+    );
+    let sphere = paired_ratio_cold(
+        ROUNDS,
+        |_| {
+            let mut keys = Vec::new();
+            for &p in &c.points {
+                let result = c
+                    .bevy
+                    .tree
+                    .overlapping_sphere_into(p, RADIUS, &mut ws, &mut keys);
+                result.expect("valid sphere");
+            }
+            keys.len()
+        },
+        |_| {
+            let mut keys = Vec::new();
+            for &p in &c.points {
+                parry_sphere(&c.parry, p, &mut keys);
+            }
+            keys.len()
+        },
+    );
+    let mut table = format!(
+        "cold caches (a 128 MB buffer streamed through before each call of {POINTS} queries): \
+         bevy_rtree time ÷ the peer's, {ROUNDS} alternating rounds\n\n\
+         | query | bevy_rtree cold (µs) | peer | peer cold (µs) | ratio, median | ratio, range |\n\
+         |---|---:|---|---:|---:|---:|\n"
+    );
+    for (name, peer, r) in [
+        ("nearest 8", "rstar", nearest),
+        ("sphere 10 m", "parry3d", sphere),
+    ] {
+        table += &format!(
+            "| {name} | {:.1} | {peer} | {:.1} | {:.3} | {:.3}–{:.3} |\n",
+            r.a_us, r.b_us, r.median, r.low, r.high
+        );
+    }
+    eprintln!("\n{table}");
+    let path = std::path::Path::new("target/criterion/proximity_cold_ratios.md");
+    if let Err(e) = std::fs::write(path, &table) {
+        eprintln!("could not write {}: {e}", path.display());
+    }
+}
