@@ -226,6 +226,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     near &= near - 1;
                     let d2 = point_box_distance_sq(point, &node.lane_box(lane));
                     if d2 <= limit {
+                        // Loads of the children overlap instead of
+                        // queueing when the tree is not in cache.
+                        self.prefetch_node(node.child[lane]);
                         stack.push((node.child[lane], d2));
                     }
                 }

@@ -108,6 +108,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 if node.is_leaf() {
                     visit(self.key_of(node.child[lane]), &bounds);
                 } else {
+                    self.prefetch_node(node.child[lane]);
                     ws.stack.push(node.child[lane]);
                 }
             }

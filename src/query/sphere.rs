@@ -82,6 +82,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     continue;
                 };
                 if !node.is_leaf() {
+                    // Loads of siblings overlap instead of stalling in turn.
+                    self.prefetch_node(node.child[lane]);
                     ws.stack.push(node.child[lane]);
                 } else if visit(self.key_of(node.child[lane]), &aabb, d2).is_break() {
                     return Ok(());
