@@ -78,15 +78,19 @@ fn teleporting_scene(plugin: SpatialIndexPlugin, count: usize, frames: usize) ->
     rebuilds
 }
 
-/// The default: on the task pool where the app has one (with feature
-/// `parallel`; the test gives it one), off otherwise.
+/// On the task pool where the app has one (with feature `parallel`; the
+/// test gives it one), off otherwise.
 #[test]
 fn rebuilds_on_the_task_pool_keep_the_answers_exact() {
     #[cfg(feature = "parallel")]
     bevy_tasks::AsyncComputeTaskPool::get_or_init(|| {
         bevy_tasks::TaskPoolBuilder::new().num_threads(2).build()
     });
-    let rebuilds = teleporting_scene(SpatialIndexPlugin::default(), 4_000, 120);
+    let plugin = SpatialIndexPlugin {
+        rebuild: RebuildMode::OnTaskPool,
+        ..SpatialIndexPlugin::default()
+    };
+    let rebuilds = teleporting_scene(plugin, 4_000, 120);
     if cfg!(feature = "parallel") {
         assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
     } else {
@@ -104,13 +108,14 @@ fn rebuilds_in_slices_keep_the_answers_exact() {
     assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
 }
 
+/// Off, the default: nothing is rebuilt.
 #[test]
 fn rebuild_off_rebuilds_nothing() {
-    let plugin = SpatialIndexPlugin {
-        rebuild: RebuildMode::Off,
-        ..SpatialIndexPlugin::default()
-    };
-    assert_eq!(teleporting_scene(plugin, 4_000, 40), 0);
+    assert_eq!(SpatialIndexPlugin::default().rebuild, RebuildMode::Off);
+    assert_eq!(
+        teleporting_scene(SpatialIndexPlugin::default(), 4_000, 40),
+        0
+    );
 }
 
 #[test]

@@ -155,7 +155,7 @@ pub fn measure(count: usize) -> Vec<SessionRow> {
             Upkeep::Slices,
         ),
         Kept::new(
-            "jump limit 2, rebuild on another thread (the plugin's default)",
+            "jump limit 2, rebuild on another thread (RebuildMode::OnTaskPool)",
             &scene,
             TreeSettings::default(),
             Upkeep::WorkAway,

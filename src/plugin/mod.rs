@@ -134,11 +134,10 @@ pub struct SpatialIndexPlugin {
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
     /// repair in any one frame.
     pub optimize_budget: usize,
-    /// How each layer's tree is rebuilt when the changes since its last
-    /// rebuild reach a quarter of its entries, so that it stays near the
-    /// speed of a fresh one in long sessions: by default on Bevy's
-    /// `AsyncComputeTaskPool` where the app has one (feature `parallel`),
-    /// and not at all otherwise. See [`RebuildMode`].
+    /// Whether and how each layer's tree is rebuilt when the changes since
+    /// its last rebuild reach a quarter of its entries, so that it stays
+    /// near the speed of a fresh one in long sessions: off by default (the
+    /// swap costs the frame it lands in milliseconds); see [`RebuildMode`].
     pub rebuild: RebuildMode,
 }
 
