@@ -163,10 +163,11 @@ pub struct BevyVisibilityWork {
     /// Candidates the tree proved inside every plane Bevy tests: they skip
     /// Bevy's frustum tests.
     pub proven: u64,
-    /// Entity-camera pairs decided by Bevy's own tests one by one: the
+    /// Entity-camera pairs left to Bevy's own checks one by one: the
     /// candidates not proven, and the entities outside the tree (no
     /// `Aabb`, `NoFrustumCulling`, an unusable box) for every camera that
-    /// culls.
+    /// culls. Some of them stop at Bevy's first checks (hidden, another
+    /// layer) before any frustum test.
     pub tested: u64,
 }
 

@@ -561,6 +561,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 _ => proxy.leaf = NIL,
             }
         }
+        // A level whose other nodes lost all their entries while the
+        // rebuild ran leaves a root with a single child: collapsed first,
+        // so that the replay's removals never empty a root.
+        self.shrink_root();
         // What wears the new tiling is what the replay changes in its
         // structure (a move that grows a leaf or is reinserted counts
         // itself), not the entries it only rewrites in place: counting

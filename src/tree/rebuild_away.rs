@@ -86,7 +86,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// then goes on in [`RTree::step_rebuild`]). Until the work comes back
     /// ([`RTree::finish_rebuild_work`]) the tree answers and changes as
     /// usual, marking each entry that changes, and `step_rebuild` does
-    /// nothing.
+    /// nothing; work that never comes back (dropped, or taken from a tree
+    /// that was cloned since) leaves the rebuild waiting until
+    /// [`RTree::cancel_rebuild`].
     pub fn take_rebuild_work(&mut self) -> Option<RebuildWork<K, W>> {
         let job = self.rebuild_job.as_mut()?;
         let fresh = matches!(
