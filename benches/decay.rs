@@ -18,6 +18,9 @@
 //! visited, maintained ÷ fresh: the same ratio without the timer's noise. Deterministic
 //! from the seed, apart from where the time-budgeted slices end.
 
+#[path = "common/rebuild_thread.rs"]
+mod rebuild_thread;
+
 use std::time::Instant;
 
 use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
@@ -25,6 +28,7 @@ use bevy_rtree::{
     Aabb, CullMode, JoinMode, ProxyId, QueryWorkspace, RTree, RayMode, RayResults, RebuildWork,
 };
 use glam::Vec3;
+use rebuild_thread::keep_fresh_on_a_thread;
 
 const SEED: u64 = 0x5EED_2024;
 /// The plugin's default repair budget per layer and frame.
@@ -89,36 +93,6 @@ struct World {
     /// (as the plugin runs it on Bevy's async pool), one slot per tree.
     work_away: bool,
     away: [Option<std::thread::JoinHandle<RebuildWork<u32>>>; 3],
-}
-
-/// One frame of a tree's rebuild as the plugin runs it with a task pool:
-/// started when worn, its work sent to another thread and taken back
-/// when done, the rest advanced in slices of `budget`.
-fn keep_fresh(
-    tree: &mut RTree<u32>,
-    budget: std::time::Duration,
-    away: &mut Option<std::thread::JoinHandle<RebuildWork<u32>>>,
-) {
-    if let Some(worker) = away {
-        if !worker.is_finished() {
-            return;
-        }
-        tree.finish_rebuild_work(away.take().unwrap().join().unwrap());
-    }
-    if !tree.rebuild_pending() {
-        if !tree.is_worn() {
-            return;
-        }
-        tree.start_rebuild();
-        if let Some(mut work) = tree.take_rebuild_work() {
-            *away = Some(std::thread::spawn(move || {
-                work.run();
-                work
-            }));
-            return;
-        }
-    }
-    tree.step_rebuild(budget);
 }
 
 impl World {
@@ -277,7 +251,9 @@ impl World {
         for (tree, away) in trees.into_iter().zip(&mut self.away) {
             tree.optimize(OPTIMIZE_BUDGET);
             match self.rebuild_budget {
-                Some(budget) if self.work_away => keep_fresh(tree, budget, away),
+                Some(budget) if self.work_away => {
+                    keep_fresh_on_a_thread(tree, budget, away);
+                }
                 Some(budget) => {
                     tree.rebuild_when_worn(budget);
                 }

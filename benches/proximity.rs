@@ -315,24 +315,49 @@ fn check(c: &Contenders) -> (usize, usize) {
     (rstar_near, rstar_sphere_ties)
 }
 
+/// bevy_rtree's `K` nearest of every query point, their keys into `out`.
+fn bevy_nearest_all(
+    c: &Contenders,
+    ws: &mut QueryWorkspace,
+    neighbours: &mut Vec<Neighbor<u32>>,
+    out: &mut Vec<u32>,
+) {
+    for &p in &c.points {
+        let result = c.bevy.tree.nearest_into(p, K, None, ws, neighbours);
+        result.expect("valid point");
+        out.extend(neighbours.iter().map(|n| n.key));
+    }
+}
+
+/// rstar's `K` nearest of every query point.
+fn rstar_nearest_all(c: &Contenders, out: &mut Vec<u32>) {
+    for &p in &c.points {
+        rstar_nearest(&c.rstar, p, out);
+    }
+}
+
+/// bevy_rtree's entries within `RADIUS` of every query point.
+fn bevy_sphere_all(c: &Contenders, ws: &mut QueryWorkspace, out: &mut Vec<u32>) {
+    for &p in &c.points {
+        let result = c.bevy.tree.overlapping_sphere_into(p, RADIUS, ws, out);
+        result.expect("valid sphere");
+    }
+}
+
+/// parry3d's entries within `RADIUS` of every query point.
+fn parry_sphere_all(c: &Contenders, out: &mut Vec<u32>) {
+    for &p in &c.points {
+        parry_sphere(&c.parry, p, out);
+    }
+}
+
 fn bench_nearest(cr: &mut Criterion, c: &Contenders) {
     let mut group = cr.benchmark_group("proximity/nearest_8");
     let (mut ws, mut neighbours) = (QueryWorkspace::default(), Vec::new());
     bench_list(&mut group, "bevy_rtree", |out| {
-        for &p in &c.points {
-            let result = c
-                .bevy
-                .tree
-                .nearest_into(p, K, None, &mut ws, &mut neighbours);
-            result.expect("valid point");
-            out.extend(neighbours.iter().map(|n| n.key));
-        }
+        bevy_nearest_all(c, &mut ws, &mut neighbours, out)
     });
-    bench_list(&mut group, "rstar", |out| {
-        for &p in &c.points {
-            rstar_nearest(&c.rstar, p, out);
-        }
-    });
+    bench_list(&mut group, "rstar", |out| rstar_nearest_all(c, out));
     // About 0.2 s per iteration: ten samples of one iteration each.
     group.sampling_mode(SamplingMode::Flat).sample_size(10);
     let (mut scratch, mut best) = (Vec::new(), Vec::new());
@@ -349,16 +374,9 @@ fn bench_sphere(cr: &mut Criterion, c: &Contenders) {
     let mut group = cr.benchmark_group("proximity/sphere_10m");
     let mut ws = QueryWorkspace::default();
     bench_list(&mut group, "bevy_rtree", |out| {
-        for &p in &c.points {
-            let result = c.bevy.tree.overlapping_sphere_into(p, RADIUS, &mut ws, out);
-            result.expect("valid sphere");
-        }
+        bevy_sphere_all(c, &mut ws, out)
     });
-    bench_list(&mut group, "parry3d", |out| {
-        for &p in &c.points {
-            parry_sphere(&c.parry, p, out);
-        }
-    });
+    bench_list(&mut group, "parry3d", |out| parry_sphere_all(c, out));
     bench_list(&mut group, "rstar", |out| {
         for &p in &c.points {
             rstar_sphere(&c.rstar, p, out);
@@ -404,48 +422,32 @@ criterion_main!(benches);
 fn cold_ratios(c: &Contenders) {
     use common::paired::paired_ratio_cold;
     const ROUNDS: usize = 31;
-    let (mut ws, mut neighbours, mut out) = (QueryWorkspace::default(), Vec::new(), Vec::new());
+    let (mut ws, mut neighbours) = (QueryWorkspace::default(), Vec::new());
+    let (mut out, mut peer_out) = (Vec::new(), Vec::new());
     let nearest = paired_ratio_cold(
         ROUNDS,
         |_| {
             out.clear();
-            for &p in &c.points {
-                let result = c
-                    .bevy
-                    .tree
-                    .nearest_into(p, K, None, &mut ws, &mut neighbours);
-                result.expect("valid point");
-                out.extend(neighbours.iter().map(|n| n.key));
-            }
+            bevy_nearest_all(c, &mut ws, &mut neighbours, &mut out);
             out.len()
         },
         |_| {
-            let mut keys = Vec::new();
-            for &p in &c.points {
-                rstar_nearest(&c.rstar, p, &mut keys);
-            }
-            keys.len()
+            peer_out.clear();
+            rstar_nearest_all(c, &mut peer_out);
+            peer_out.len()
         },
     );
     let sphere = paired_ratio_cold(
         ROUNDS,
         |_| {
-            let mut keys = Vec::new();
-            for &p in &c.points {
-                let result = c
-                    .bevy
-                    .tree
-                    .overlapping_sphere_into(p, RADIUS, &mut ws, &mut keys);
-                result.expect("valid sphere");
-            }
-            keys.len()
+            out.clear();
+            bevy_sphere_all(c, &mut ws, &mut out);
+            out.len()
         },
         |_| {
-            let mut keys = Vec::new();
-            for &p in &c.points {
-                parry_sphere(&c.parry, p, &mut keys);
-            }
-            keys.len()
+            peer_out.clear();
+            parry_sphere_all(c, &mut peer_out);
+            peer_out.len()
         },
     );
     let mut table = format!(

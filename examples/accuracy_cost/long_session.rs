@@ -8,6 +8,9 @@
 //! against the work queries then do, counted against a fresh bulk load of
 //! the same boxes.
 
+#[path = "../../benches/common/rebuild_thread.rs"]
+mod rebuild_thread;
+
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
@@ -15,6 +18,7 @@ use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
 use bevy_rtree::{Aabb, JoinMode, ProxyId, QueryWorkspace, RTree, Ray, RayMode, RayResults};
 use bevy_rtree::{RebuildWork, TreeSettings};
 use glam::Vec3;
+use rebuild_thread::keep_fresh_on_a_thread;
 
 use crate::{SEED, mean};
 
@@ -94,37 +98,12 @@ impl Kept {
         let swapped = match self.upkeep {
             Upkeep::Repair => false,
             Upkeep::Slices => tree.rebuild_when_worn(SLICE),
-            Upkeep::WorkAway => keep_fresh_away(tree, &mut self.away),
+            Upkeep::WorkAway => keep_fresh_on_a_thread(tree, Duration::ZERO, &mut self.away),
         };
         self.rebuilds += u64::from(swapped);
         self.maintenance_ms
             .push(start.elapsed().as_secs_f64() * 1e3);
     }
-}
-
-/// The plugin's upkeep on a task pool, with a thread for the pool.
-fn keep_fresh_away(
-    tree: &mut RTree<u32>,
-    away: &mut Option<std::thread::JoinHandle<RebuildWork<u32>>>,
-) -> bool {
-    if let Some(worker) = away {
-        if !worker.is_finished() {
-            return false;
-        }
-        let work = away.take().expect("checked").join().expect("the work ran");
-        tree.finish_rebuild_work(work);
-        return tree.step_rebuild(Duration::ZERO);
-    }
-    if tree.is_worn() {
-        tree.start_rebuild();
-        if let Some(mut work) = tree.take_rebuild_work() {
-            *away = Some(std::thread::spawn(move || {
-                work.run();
-                work
-            }));
-        }
-    }
-    false
 }
 
 /// Runs the session for every contender and measures them against a
@@ -326,7 +305,7 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
          ahead of it by the displacement factor times the jump, and the stretch stays: \
          the queries' work grows frame after frame. The rebuild's slices cost their \
          budget on the calling thread while a rebuild runs; on another thread the \
-         calling thread pays only the swap, which applies the changes made while the \
-         work ran."
+         calling thread pays the snapshot at the start and the swap at the end, which \
+         applies the changes made while the work ran."
     );
 }
