@@ -292,3 +292,79 @@ fn slots_reused_during_a_rebuild_keep_their_handles_apart() {
     assert_eq!(tree.containing_point(Vec3::splat(-50.0)), vec![1_000]);
     assert_eq!(tree.len(), 499);
 }
+
+/// The changes made while the work was away are applied over several
+/// steps, not in one frame: with thousands waiting and more every frame,
+/// a step that is given no time still applies its share, the swap comes
+/// within nine steps, and every frame in between answers as the oracle
+/// does from a valid tree.
+#[test]
+fn changes_waiting_for_the_swap_are_spread_over_steps() {
+    let scene = TownScene::new(20_000, 12);
+    let (mut tree, ids) = scene.bulk_loaded_tree();
+    let mut oracle = BruteForce::default();
+    let mut handles: BTreeMap<u32, ProxyId> = BTreeMap::new();
+    for (key, aabb) in scene.boxes().iter().enumerate() {
+        handles.insert(key as u32, ids[key]);
+        oracle.insert(key as u32, *aabb);
+    }
+    let mut rng = SceneRng::new(21);
+    let mut next_key = scene.len() as u32;
+    // A frame's changes: respawns (a removal and an insert elsewhere) and
+    // teleports.
+    let mut churn = |tree: &mut RTree<u32>, oracle: &mut BruteForce<u32>, count: usize| {
+        for _ in 0..count {
+            let keys: Vec<u32> = handles.keys().copied().collect();
+            let key = keys[rng.below(keys.len())];
+            let id = handles.remove(&key).unwrap();
+            assert_eq!(tree.remove(id), Ok(key));
+            oracle.remove(key);
+            let aabb = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+            handles.insert(next_key, tree.insert(next_key, aabb).unwrap());
+            oracle.insert(next_key, aabb);
+            next_key += 1;
+            let key = keys[rng.below(keys.len())];
+            if let Some(&id) = handles.get(&key) {
+                let aabb = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+                tree.update(id, aabb).unwrap();
+                oracle.update(key, aabb);
+            }
+        }
+    };
+    tree.start_rebuild();
+    let mut work = tree.take_rebuild_work().unwrap();
+    for _ in 0..4 {
+        churn(&mut tree, &mut oracle, 500);
+    }
+    work.run();
+    assert!(tree.finish_rebuild_work(work));
+    let mut probe = SceneRng::new(22);
+    let mut steps = 0;
+    let mut ws = QueryWorkspace::default();
+    loop {
+        churn(&mut tree, &mut oracle, 100);
+        steps += 1;
+        let swapped = tree.step_rebuild(Duration::ZERO);
+        tree.validate().unwrap();
+        assert_eq!(tree.len(), oracle.len());
+        let query = cube(random_point(&mut probe), 60.0);
+        assert_eq!(tree.overlapping(&query), oracle.overlapping(&query));
+        let ray = Ray::new(random_point(&mut probe), probe.direction(), 800.0).unwrap();
+        assert_eq!(tree.cast_ray(&ray, &mut ws), oracle.ray_first(&ray));
+        if swapped {
+            break;
+        }
+        assert!(steps < 9, "not swapped in after {steps} steps");
+    }
+    assert!(steps >= 2, "all of the waiting changes applied in one step");
+    assert!(!tree.rebuild_pending());
+    let frustum = scene.frustum();
+    assert_eq!(
+        tree.visible(&frustum, CullMode::Conservative),
+        oracle.visible(&frustum, CullMode::Conservative)
+    );
+    for (&key, &id) in &handles {
+        let want = oracle.entries().iter().find(|e| e.0 == key).unwrap().1;
+        assert_eq!(tree.get(id), Ok((key, want)));
+    }
+}

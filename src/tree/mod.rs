@@ -22,6 +22,7 @@ mod optimize;
 pub(crate) mod prefetch;
 mod rebuild;
 mod rebuild_away;
+mod rebuild_catch_up;
 mod remove;
 mod repair_queue;
 mod settings;

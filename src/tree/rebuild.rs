@@ -8,11 +8,13 @@
 //! the snapshot's boxes, or for an entry that moved since, its box as it
 //! is when the leaf is filled. Once an entry sits in a new leaf, a move inside that
 //! enlarged box is mirrored there at once (one lane write); any other
-//! change (a move beyond it, an insert, a removal) marks the entry, and the
-//! swap detaches and reinserts the marked entries only. Handles are slot
-//! indices and generations, which the swap does not touch: they stay
-//! valid, and answers never change (the swapped structure holds exactly
-//! the live entries with their current boxes; `validate` checks it).
+//! change (a move beyond it, an insert, a removal) marks the entry. Once
+//! built, the new structure catches up with the marked entries over a few
+//! steps (`rebuild_catch_up.rs`) and is swapped in when none are left.
+//! Handles are slot indices and generations, which the swap does not
+//! touch: they stay valid, and answers never change (the swapped
+//! structure holds exactly the live entries with their current boxes;
+//! `validate` checks it).
 
 use std::time::{Duration, Instant};
 
@@ -20,6 +22,7 @@ use super::bulk::{centre_key, group_range, widest_centre_axis};
 use super::handle::Stamp;
 use super::node::{NIL, Node};
 use super::rebuild_away::next_ticket;
+use super::rebuild_catch_up::CatchUp;
 use super::{Entry, RTree};
 use crate::geometry::Aabb;
 
@@ -44,7 +47,7 @@ pub(super) struct RebuildJob<const W: usize> {
     /// its box from the tree; the others take the snapshot's, in order).
     pub(super) moved_early: Vec<bool>,
     /// What remains to do.
-    pub(super) phase: Phase,
+    pub(super) phase: Phase<W>,
     /// Tells this rebuild's tiling apart from any other's when it comes
     /// back from another thread.
     pub(super) ticket: u64,
@@ -65,7 +68,7 @@ impl<const W: usize> RebuildJob<W> {
 }
 
 #[derive(Clone, Debug)]
-pub(super) enum Phase {
+pub(super) enum Phase<const W: usize> {
     /// Tiling the entries of `level` into `groups` groups: median cuts
     /// still to make, as (start, end, first group, group count).
     Partition {
@@ -88,6 +91,9 @@ pub(super) enum Phase {
     Away,
     /// Built: the new root.
     Done { root: u32 },
+    /// Built, and bringing the new structure up to date with the changes
+    /// made meanwhile before the swap (`rebuild_catch_up.rs`).
+    CatchUp(CatchUp<W>),
 }
 
 /// One median cut of a level's tiling, if any remain: splits the range on
@@ -198,9 +204,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Advances the rebuild under way for about `budget` (one median cut or
     /// one node at least, so that every call makes progress; the first
     /// cuts of a large tree take longest, about 1 ms per 100,000 entries).
-    /// When the new structure is complete it is swapped in and `true` is
-    /// returned; `false` while work remains or when no rebuild is under
-    /// way.
+    /// Once the new structure is built, each step applies to it the
+    /// changes the tree made meanwhile: at least those made since the
+    /// previous step and an eighth of those waiting when it was built,
+    /// whatever the budget, so that it is swapped in within about eight
+    /// steps. Returns `true` when it is swapped in; `false` while work
+    /// remains or when no rebuild is under way.
     pub fn step_rebuild(&mut self, budget: Duration) -> bool {
         let deadline = Instant::now() + budget;
         self.step_rebuild_until(usize::MAX, Some(deadline))
@@ -216,11 +225,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// (`cargo bench --bench decay`, 2,000 frames): the maintained tree
     /// visits 6 to 74 % more nodes than a fresh bulk load of the same
     /// entries, depending on how things move, and the same entries retiled
-    /// 0 to 7 % more. With this at 0.5 ms a frame, steps come back to 5 %
-    /// more (maintenance 0.53 → 1.67 ms a frame); where 1 % of the
+    /// 0 to 7 % more. With this at 0.25 ms a frame, steps come back to
+    /// 6 % more (maintenance 0.29 → 0.60 ms a frame); where 1 % of the
     /// entries teleport or respawn every frame, a rebuild that takes tens
-    /// of frames meets a quarter of them changed at the swap, and the tree
-    /// stays 30–50 % above fresh. The plugin does not call it by default.
+    /// of frames meets many of them changed by the swap, and the tree
+    /// stays 45–60 % above fresh. The plugin does not call it by default.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -288,7 +297,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return false;
         };
         // At least one unit per call, then until the units or the time run
-        // out; a finished build is swapped in at once.
+        // out; a finished build catches up and is swapped in.
         if matches!(job.phase, Phase::Away) {
             // The tiling runs elsewhere; nothing to do here until it is back.
             self.rebuild_job = Some(job);
@@ -297,8 +306,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let mut done = 0usize;
         loop {
             if let Phase::Done { root } = job.phase {
-                self.swap_in(*job, root);
-                return true;
+                job.phase = self.begin_catch_up(&mut job, root);
+            }
+            if matches!(job.phase, Phase::CatchUp(_)) {
+                let swapped = self.catch_up(&mut job, units.saturating_sub(done), deadline);
+                if !swapped {
+                    self.rebuild_job = Some(job);
+                }
+                return swapped;
             }
             let out_of_time = deadline.is_some_and(|d| Instant::now() >= d);
             if done > 0 && (done >= units || out_of_time) {
@@ -312,7 +327,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// The first phase of a level: tiling, or the root if the entries fit
     /// in one node.
-    pub(super) fn partition_phase(level: u16, entries: Vec<Entry>) -> Phase {
+    pub(super) fn partition_phase(level: u16, entries: Vec<Entry>) -> Phase<W> {
         let groups = if entries.len() <= W {
             1
         } else {
@@ -406,7 +421,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     };
                 }
             }
-            Phase::Away | Phase::Done { .. } => {}
+            Phase::Away | Phase::Done { .. } | Phase::CatchUp(_) => {}
         }
     }
 
@@ -488,12 +503,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// this structure made it: a move whose new enlarged box (`moved_to`:
     /// the exact box and the enlarged one this structure gave it) stays
     /// inside the bound of the entry's new leaf is mirrored there (a lane
-    /// write); any other change marks the slot for the swap.
+    /// write); any other change marks the slot, to be applied to the new
+    /// structure before the swap.
     pub(super) fn note_change(&mut self, slot: u32, moved_to: Option<(&Aabb, &Aabb)>) {
         let Some(job) = self.rebuild_job.as_deref_mut() else {
             return;
         };
         let s = slot as usize;
+        if let (Some((exact, fat)), Phase::CatchUp(state)) = (moved_to, &mut job.phase) {
+            // Built and catching up: a move that stays inside the new
+            // leaf of the same entry is mirrored there.
+            let unmarked = !job.is_marked.get(s).copied().unwrap_or(false);
+            let same_entry = job.snapshot_stamps.get(s) == Some(&self.stamps[s]);
+            if unmarked && same_entry && state.mirror_move(s, exact, fat) {
+                return;
+            }
+        }
         if let (Some((exact, fat)), Some(placed)) = (moved_to, job.placed.get_mut(s))
             && !job.is_marked[s]
         {
@@ -510,98 +535,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
         }
         job.mark(slot);
-    }
-
-    /// Installs the new structure and applies the marked changes to it.
-    fn swap_in(&mut self, job: RebuildJob<W>, root: u32) {
-        let RebuildJob {
-            nodes,
-            placed,
-            marked,
-            snapshot_stamps,
-            ..
-        } = job;
-        // The marked entries' boxes as they are now, read from the
-        // structure about to go.
-        let replay: Vec<(u32, Option<Aabb>)> = marked
-            .iter()
-            .map(|&slot| {
-                let p = &self.proxies[slot as usize];
-                let now = p
-                    .is_live()
-                    .then(|| self.nodes[p.leaf as usize].lane_box(p.lane as usize));
-                (slot, now)
-            })
-            .collect();
-        let count = nodes.len();
-        self.nodes = nodes;
-        self.root = root;
-        self.free_nodes.clear();
-        self.churn = vec![0; count];
-        self.held_bounds = vec![Aabb::EVERYWHERE; count];
-        self.dirty.clear();
-        for index in 0..count as u32 {
-            let node = &self.nodes[index as usize];
-            if node.is_leaf() {
-                continue;
-            }
-            for lane in 0..node.len() {
-                self.held_bounds[node.child[lane] as usize] = node.lane_box(lane);
-            }
-        }
-        // Every slot's record now points into the new structure (or
-        // nowhere, for an entry it does not hold).
-        for (slot, proxy) in self.proxies.iter_mut().enumerate() {
-            match placed.get(slot) {
-                Some(&(leaf, lane, fat)) if leaf != NIL => {
-                    proxy.leaf = leaf;
-                    proxy.lane = lane;
-                    proxy.fat = fat;
-                }
-                _ => proxy.leaf = NIL,
-            }
-        }
-        // A level whose other nodes lost all their entries while the
-        // rebuild ran leaves a root with a single child: collapsed first,
-        // so that the replay's removals never empty a root.
-        self.shrink_root();
-        // What wears the new tiling is what the replay changes in its
-        // structure (a move that grows a leaf or is reinserted counts
-        // itself), not the entries it only rewrites in place: counting
-        // those would call for the next rebuild at once wherever many
-        // entries move a little.
-        self.wear = 0;
-        for (slot, now) in replay {
-            let s = slot as usize;
-            let same_entry = snapshot_stamps.get(s) == Some(&self.stamps[s]);
-            if let (true, true, Some(exact)) = (self.proxies[s].is_live(), same_entry, now) {
-                // The entry moved beyond its new leaf: moved there as any
-                // move is (most only grow the leaf's bound).
-                self.move_proxy_here(slot, exact);
-                continue;
-            }
-            if self.proxies[s].is_live() {
-                // The new structure holds what the snapshot's entry was.
-                self.detach(slot);
-                self.proxies[s].leaf = NIL;
-            }
-            if let Some(exact) = now {
-                let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
-                self.proxies[s].fat = fat;
-                self.wear += 1;
-                self.insert_entry(
-                    Entry {
-                        lane_box: exact,
-                        bound: fat,
-                        child: slot,
-                    },
-                    0,
-                );
-            }
-        }
-        // Entries that left meanwhile may leave a root with one child.
-        self.shrink_root();
-        self.maintenance.rebuilds += 1;
     }
 }
 

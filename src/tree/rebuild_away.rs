@@ -2,8 +2,9 @@
 //! tiling of the snapshot and the filling of the new nodes, all of it
 //! from the snapshot's boxes. The tree keeps answering and changing
 //! meanwhile and marks every entry that changes; when the work comes back
-//! the swap applies those changes to the new structure (a move inside the
-//! entry's new leaf is a lane write, anything else a reinsertion).
+//! the steps apply those changes to the new structure (a move inside the
+//! entry's new leaf is a lane write, anything else a reinsertion), a share
+//! a step, and swap it in.
 
 use std::marker::PhantomData;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -42,7 +43,7 @@ pub(super) fn next_ticket() -> u64 {
 /// // Meanwhile the tree answers and changes as usual.
 /// tree.update(ids[3], Aabb::new(Vec3::splat(-9.0), Vec3::splat(-8.0))?)?;
 /// assert!(tree.finish_rebuild_work(worker.join().unwrap()));
-/// // The swap (and any work left) in the next step.
+/// // The changes made meanwhile applied, and the swap, in the next steps.
 /// while !tree.step_rebuild(Duration::from_micros(100)) {}
 /// assert_eq!(tree.containing_point(Vec3::splat(-8.5)), vec![3]);
 /// tree.validate().unwrap();
@@ -126,8 +127,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Gives back work taken by [`RTree::take_rebuild_work`]; the next
-    /// [`RTree::step_rebuild`] swaps it in (finishing first what it did
-    /// not finish). Returns `false`, and drops the work, if it is not this
+    /// steps ([`RTree::step_rebuild`]) finish what it did not finish,
+    /// apply the changes made meanwhile and swap it in. Returns `false`, and drops the work, if it is not this
     /// tree's rebuild under way (cancelled meanwhile, or another tree's):
     /// the tree is then unchanged.
     pub fn finish_rebuild_work(&mut self, work: RebuildWork<K, W>) -> bool {
