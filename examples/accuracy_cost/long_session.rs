@@ -305,7 +305,7 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
          ahead of it by the displacement factor times the jump, and the stretch stays: \
          the queries' work grows frame after frame. The rebuild's slices cost their \
          budget on the calling thread while a rebuild runs; on another thread the \
-         calling thread pays the snapshot at the start and the swap at the end, which \
-         applies the changes made while the work ran."
+         calling thread pays the snapshot at the start and, over the next few frames, \
+         the changes made while the work ran, applied to the new structure before the swap."
     );
 }
