@@ -14,6 +14,7 @@ use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
+use crate::tree::prefetch::prefetch_lines;
 
 /// One hit: the entry's key and the ray parameter where the ray enters its
 /// box (`0` when the origin is inside or on the box).
@@ -329,7 +330,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         stack.clear();
         stack.push((start, 0.0));
         while let Some(index) = pop_within(stack, limit) {
-            match self.walk_node(index, test, limit, stack, stats, &mut visit, &lanes, &push) {
+            match self.walk_node::<true, _, _, _>(
+                index, test, limit, stack, stats, &mut visit, &lanes, &push,
+            ) {
                 ControlFlow::Continue(shrunk) => limit = shrunk,
                 ControlFlow::Break(()) => return -1.0,
             }
@@ -421,7 +424,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         L: Fn(&RayTest, f32, &Node<W>) -> (u32, [f32; W]),
         P: Fn(&mut Vec<(u32, f32)>, &Node<W>, u32, &[f32; W]),
     {
-        match self.walk_node(index, test, limit, stack, stats, visit, lanes, push) {
+        match self.walk_node::<false, _, _, _>(index, test, limit, stack, stats, visit, lanes, push)
+        {
             ControlFlow::Continue(shrunk) => shrunk,
             ControlFlow::Break(()) => {
                 stack.clear();
@@ -433,10 +437,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// One node of a ray's walk, returning the ray's limit after it: a leaf
     /// reports its hits within `limit` to `visit`, the limit shrinking to
     /// what `visit` returns (`Break` when `visit` breaks); an internal node
-    /// pushes its hit children far to near.
+    /// pushes its hit children far to near (and with `PREFETCH` asks for
+    /// their cache lines).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn walk_node<F, L, P>(
+    fn walk_node<const PREFETCH: bool, F, L, P>(
         &self,
         index: u32,
         test: &RayTest,
@@ -467,6 +472,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 limit = limit.min(visit(node.child[lane], lane_t[lane])?);
             }
         } else {
+            if PREFETCH {
+                // Every hit child is requested now, so that the loads of a
+                // ray's next nodes overlap instead of waiting one after
+                // another when the tree is cold (1,000 incoherent rays,
+                // cold: 0.50 -> 0.42 x parry3d's time; warm 0.41 -> 0.39).
+                // Rays from one point walk in pairs without it: their
+                // nodes are in cache, and the requests cost them 10 %.
+                let mut hits = mask;
+                while hits != 0 {
+                    let lane = hits.trailing_zeros() as usize;
+                    hits &= hits - 1;
+                    prefetch_lines(self.node(node.child[lane]));
+                }
+            }
             push(stack, node, mask, &lane_t);
         }
         ControlFlow::Continue(limit)
