@@ -49,9 +49,25 @@ fn build(boxes: &[Aabb]) -> (RTree<u32, 4>, BruteForce<u32>) {
 }
 
 fn check_views(tree: &RTree<u32, 4>, oracle: &BruteForce<u32>, views: &[Frustum]) {
+    let boxes: std::collections::HashMap<u32, Aabb> = oracle.entries().iter().copied().collect();
     for mode in [CullMode::Conservative, CullMode::Exact] {
         let mut out = vec![Vec::new(); views.len()];
         tree.visible_into(views, mode, &mut QueryWorkspace::default(), &mut out);
+        // The visitor gets the same keys in the same order, each with its
+        // own box (keys alone take another path through subtrees reported
+        // whole, which skips the boxes).
+        let mut visited = vec![Vec::new(); views.len()];
+        tree.visit_visible(
+            views,
+            mode,
+            &mut QueryWorkspace::default(),
+            |view, key, aabb| {
+                assert_eq!(Some(aabb), boxes.get(&key), "the box of {key}");
+                visited[view].push(key);
+                std::ops::ControlFlow::Continue(())
+            },
+        );
+        assert_eq!(visited, out);
         for (view, keys) in views.iter().zip(out.iter_mut()) {
             keys.sort_unstable();
             assert_eq!(*keys, oracle.visible(view, mode), "{mode:?} {view:?}");

@@ -468,7 +468,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
             |item, pushed| {
                 ws.cull_stack.clear();
-                let _ = self.cull_step(views, item, ws, &mut |_, _, _| reports_nothing(()));
+                let _ =
+                    self.cull_step::<false, _>(views, item, ws, &mut |_, _, _| reports_nothing(()));
                 pushed.extend_from_slice(&ws.cull_stack);
             },
         );
@@ -485,7 +486,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.ws.cull_stack.clear();
             task.ws.cull_stack.push(item);
             let keys = &mut task.keys;
-            let _ = self.cull_drain(views, &mut task.ws, &mut |view, key, _| {
+            let _ = self.cull_drain::<false, _>(views, &mut task.ws, &mut |view, key, _| {
                 keys[view].push(key);
                 ControlFlow::Continue(())
             });

@@ -40,6 +40,18 @@ impl<K, const W: usize> RTree<K, W> {
         }
     }
 
+    /// Asks the CPU to start loading the links of the node at `index` (its
+    /// children, count and level: two of its eight lines at the default
+    /// width), all that a walk reporting its subtree whole without boxes
+    /// reads.
+    #[inline(always)]
+    pub(crate) fn prefetch_node_links(&self, index: u32) {
+        if let Some(node) = self.nodes.get(index as usize) {
+            prefetch_lines(&node.child);
+            prefetch_lines(&node.len);
+        }
+    }
+
     /// Asks the CPU to start loading the lane bounds of the node at `index`
     /// (six of its eight lines at the default width): what a move inside its
     /// enlarged box writes.
