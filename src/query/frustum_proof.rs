@@ -3,7 +3,7 @@
 //! engine's culling, whose exact test then decides only the unproven).
 
 use super::QueryWorkspace;
-use super::frustum::{CullMode, PreparedView};
+use super::frustum::{CullMode, KEYS_AHEAD, PreparedView};
 use crate::geometry::Frustum;
 use crate::tree::RTree;
 
@@ -53,14 +53,25 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 if node.is_leaf() {
                     visit(self.key_of(node.child[lane]), remaining[lane] == 0);
                 } else {
-                    ws.cull_stack
-                        .push((node.child[lane], u64::from(remaining[lane])));
+                    // Requested now so that the loads overlap; a child
+                    // contained whole is read for its links only.
+                    let child = node.child[lane];
+                    if remaining[lane] == 0 {
+                        self.prefetch_node_links(child);
+                    } else {
+                        self.prefetch_node(child);
+                    }
+                    ws.cull_stack.push((child, u64::from(remaining[lane])));
                 }
             }
         }
     }
 
-    /// Reports every entry below `index` as contained.
+    /// Reports every entry below `index` as contained, in two passes as
+    /// the cull reports a subtree whole: the internal nodes first, their
+    /// children's links requested and the leaves gathered; then the leaves,
+    /// the keys of the leaf [`KEYS_AHEAD`] places on requested as each is
+    /// reported.
     #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
     fn report_contained(
         &self,
@@ -69,20 +80,33 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         visit: &mut impl FnMut(K, bool),
     ) {
         let mut stack = std::mem::take(&mut ws.stack);
+        let mut leaves = std::mem::take(&mut ws.leaves);
         stack.clear();
+        leaves.clear();
         stack.push(index);
         while let Some(index) = stack.pop() {
             let node = self.node(index);
             ws.stats.nodes_visited += 1;
             if node.is_leaf() {
-                for &proxy in &node.child[..node.len()] {
-                    visit(self.key_of(proxy), true);
-                }
-            } else {
-                stack.extend_from_slice(&node.child[..node.len()]);
+                leaves.push(index);
+                continue;
+            }
+            let children = &node.child[..node.len()];
+            for &child in children {
+                self.prefetch_node_links(child);
+            }
+            stack.extend_from_slice(children);
+        }
+        for (n, &leaf) in leaves.iter().enumerate() {
+            if let Some(&ahead) = leaves.get(n + KEYS_AHEAD) {
+                self.prefetch_keys_of_leaf(self.node(ahead));
+            }
+            for &proxy in &self.node(leaf).child[..self.node(leaf).len()] {
+                visit(self.key_of(proxy), true);
             }
         }
         ws.stack = stack;
+        ws.leaves = leaves;
     }
 }
 
