@@ -62,6 +62,35 @@ fn camera() -> CullingCamera {
     )
 }
 
+/// A handle copied onto another entity (by hand, or by cloning the
+/// entity) names the first entity's entry: the second entity's moves must
+/// not move that entry, and the second entity gets an entry of its own.
+#[test]
+fn a_handle_copied_to_another_entity_moves_only_its_own_entity() {
+    let mut app = app();
+    let a = app.world_mut().spawn(unit_at(0.0)).id();
+    app.update();
+    let handle = *app.world().get::<SpatialHandle>(a).unwrap();
+    assert!(handle.id().is_some());
+    let b = app.world_mut().spawn((unit_at(40.0), handle)).id();
+    app.update();
+    assert_eq!(indexed(&app), sorted([a, b]));
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.get(a), Some(unit_at(0.0).0));
+    assert_eq!(index.get(b), Some(unit_at(40.0).0));
+    // B's own handle now, and each entity moves its own entry.
+    let b_handle = *app.world().get::<SpatialHandle>(b).unwrap();
+    assert_ne!(b_handle, handle);
+    app.world_mut().entity_mut(b).insert(handle);
+    app.world_mut().get_mut::<SpatialBounds>(b).unwrap().0 = unit_at(80.0).0;
+    app.update();
+    assert_eq!(indexed(&app), sorted([a, b]));
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.get(a), Some(unit_at(0.0).0));
+    assert_eq!(index.get(b), Some(unit_at(80.0).0));
+    assert_eq!(diagnostics(&app).sync.updated, 1);
+}
+
 #[test]
 fn spawn_move_despawn_and_respawn_follow_the_entity() {
     let mut app = app();

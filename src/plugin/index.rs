@@ -208,8 +208,12 @@ pub(crate) fn sync_main(
 pub(crate) struct SyncScratch {
     /// Entities seen for the first time, inserted together.
     fresh: Vec<(Entity, Aabb)>,
-    /// Indexed entities that moved, applied as one batch.
+    /// Indexed entities that moved, found by look-up, applied as one batch.
     moves: Vec<(ProxyId, Aabb)>,
+    /// Moves by the handles the entities keep, checked as they apply.
+    kept_moves: Vec<(ProxyId, Entity, Aabb)>,
+    /// Indices into `kept_moves` whose handle was not the entity's entry.
+    refused: Vec<usize>,
     /// The handles of the entities the last sync inserted, for callers that
     /// keep them on the entities.
     pub inserted: Vec<(Entity, ProxyId)>,
@@ -237,10 +241,14 @@ pub(crate) fn apply_changes<L: Component>(
     let SyncScratch {
         fresh,
         moves,
+        kept_moves,
+        refused,
         inserted,
     } = scratch;
     fresh.clear();
     moves.clear();
+    kept_moves.clear();
+    refused.clear();
     inserted.clear();
     for (entity, aabb, kept) in changed {
         if let Err(error) = aabb.validate() {
@@ -263,12 +271,21 @@ pub(crate) fn apply_changes<L: Component>(
         if !index.unindexed.is_empty() {
             index.unindexed.remove(&entity);
         }
-        if let Some(id) = kept
-            && index.tree.live_key(id) == Some(entity)
-        {
-            moves.push((id, aabb));
+        if let Some(id) = kept {
+            kept_moves.push((id, entity, aabb));
             continue;
         }
+        match index.proxies.get(&entity) {
+            Some(&id) => moves.push((id, aabb)),
+            None => fresh.push((entity, aabb)),
+        }
+    }
+    // Moves by the handles the entities keep, each checked as it is
+    // applied; an entity whose handle is not its entry's is looked up.
+    index.tree.update_kept(kept_moves, refused);
+    count.updated = (kept_moves.len() - refused.len()) as u64;
+    for &i in refused.iter() {
+        let (_, entity, aabb) = kept_moves[i];
         match index.proxies.get(&entity) {
             Some(&id) => moves.push((id, aabb)),
             None => fresh.push((entity, aabb)),
@@ -278,7 +295,7 @@ pub(crate) fn apply_changes<L: Component>(
     // is accepted whole; should it ever be refused, the moves go one by one
     // and only the refused ones are skipped.
     if index.tree.update_batch(moves).is_ok() {
-        count.updated = moves.len() as u64;
+        count.updated += moves.len() as u64;
     } else {
         for &(id, aabb) in moves.iter() {
             if index.tree.update(id, aabb).is_ok() {

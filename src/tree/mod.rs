@@ -283,15 +283,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         Ok(self.proxies[index as usize].fat)
     }
 
-    /// The key of the live entry `id` names, if any: a cheap check of a
-    /// handle kept elsewhere (reads the handle's stamp and the key, not the
-    /// entry's leaf).
-    #[inline]
-    #[cfg_attr(not(feature = "plugin"), allow(dead_code))]
-    pub(crate) fn live_key(&self, id: ProxyId) -> Option<K> {
-        self.check(id).ok().map(|index| self.keys[index as usize])
-    }
-
     /// Whether `id` names a live entry.
     pub fn contains(&self, id: ProxyId) -> bool {
         self.check(id).is_ok()

@@ -89,6 +89,16 @@ impl<K, const W: usize> RTree<K, W> {
         }
     }
 
+    /// Asks the CPU to start loading what checking a handle of slot `index`
+    /// against a key reads: the slot's stamp and its key. A hint only.
+    #[inline(always)]
+    pub(crate) fn prefetch_handle_check(&self, index: u32) {
+        // Any address is sound to prefetch (see `prefetch_address`).
+        let (keys, stamps) = (self.keys.as_ptr(), self.stamps.as_ptr());
+        prefetch_address(keys.wrapping_add(index as usize).cast());
+        prefetch_address(stamps.wrapping_add(index as usize).cast());
+    }
+
     /// Asks the CPU to start loading the record of proxy `index`; an index
     /// outside the records is ignored.
     #[inline(always)]

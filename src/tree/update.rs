@@ -109,6 +109,34 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         Ok(())
     }
 
+    /// Moves entries by handles kept beside their keys (the plugin keeps
+    /// one on each entity), boxes already valid: a move applies if its
+    /// handle names `key`'s live entry, and is skipped otherwise, its index
+    /// in `moves` pushed to `refused` (a stale handle, or one copied to
+    /// another entity; the caller finds that entry another way). The
+    /// handle's stamp and the key are requested with the record sixteen
+    /// moves ahead, so the checks add no wait of their own to the moves.
+    #[cfg_attr(not(feature = "plugin"), allow(dead_code))]
+    pub(crate) fn update_kept(&mut self, moves: &[(ProxyId, K, Aabb)], refused: &mut Vec<usize>) {
+        for (i, &(id, key, aabb)) in moves.iter().enumerate() {
+            if let Some(&(ahead, ..)) = moves.get(i + PROXY_AHEAD) {
+                self.prefetch_proxy(ahead.index);
+                self.prefetch_handle_check(ahead.index);
+            }
+            if let Some((ahead, ..)) = moves.get(i + LEAF_AHEAD)
+                && let Some(record) = self.proxies.get(ahead.index as usize)
+            {
+                self.prefetch_leaf_for_move(record.leaf);
+            }
+            match self.check(id) {
+                Ok(proxy) if self.keys[proxy as usize] == key => {
+                    self.move_proxy(proxy, aabb);
+                }
+                _ => refused.push(i),
+            }
+        }
+    }
+
     fn move_proxy(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
         let kind = self.move_proxy_here(proxy, aabb);
         if self.rebuild_job.is_some() {
