@@ -24,7 +24,7 @@ use bevy_mesh::Mesh3d;
 use bevy_transform::prelude::GlobalTransform;
 use glam::{DVec3, Vec3, Vec3A};
 
-use super::cameras::{UNTESTED_BY_CASCADES, candidates};
+use super::frustum_candidates::{UNTESTED_BY_CASCADES, candidates};
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
