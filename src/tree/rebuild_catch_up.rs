@@ -219,9 +219,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return;
         }
         if self.proxies[s].is_live() {
-            // This structure holds what the slot was: removed here.
+            // This structure holds what the slot was: removed here (a
+            // removal wears the tiling as an insert does).
             self.detach(slot);
             self.proxies[s].leaf = NIL;
+            if exact.is_none() {
+                self.wear += 1;
+            }
         }
         if let Some(exact) = exact {
             let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
