@@ -169,7 +169,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// The memory the tree holds, by part (allocated capacity, so a tree
-    /// that shrank keeps what it grew to).
+    /// that shrank keeps what it grew to). A rebuild under way
+    /// ([`RTree::start_rebuild`]) holds a second structure and a snapshot
+    /// beside it until its swap, not counted here.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
