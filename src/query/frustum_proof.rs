@@ -23,31 +23,17 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         loose: &Frustum,
         tight: &Frustum,
         ws: &mut QueryWorkspace,
-        visit: impl FnMut(K, bool),
-    ) {
-        if self.is_empty() {
-            return;
-        }
-        let planes = PreparedView::new(tight, CullMode::Conservative).active_planes;
-        let start = (self.root(), u64::from(planes));
-        self.visit_visible_proving_from(loose, tight, &[start], ws, visit);
-    }
-
-    /// [`RTree::visit_visible_proving`] from the items `start` (a node and
-    /// the planes of `tight` it is not yet inside) instead of the root.
-    #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
-    fn visit_visible_proving_from(
-        &self,
-        loose: &Frustum,
-        tight: &Frustum,
-        start: &[(u32, u64)],
-        ws: &mut QueryWorkspace,
         mut visit: impl FnMut(K, bool),
     ) {
         let loose = PreparedView::new(loose, CullMode::Conservative);
         let tight = PreparedView::new(tight, CullMode::Conservative);
+        if self.is_empty() {
+            return;
+        }
+        // Items: a node and the planes of `tight` it is not yet inside.
         ws.cull_stack.clear();
-        ws.cull_stack.extend_from_slice(start);
+        ws.cull_stack
+            .push((self.root(), u64::from(tight.active_planes)));
         while let Some((index, tight_planes)) = ws.cull_stack.pop() {
             if tight_planes == 0 {
                 self.report_contained(index, ws, &mut visit);
