@@ -158,14 +158,6 @@ impl World {
         }
     }
 
-    fn random_point(&mut self) -> Vec3 {
-        Vec3::new(
-            self.rng.range(0.0, WORLD_MAX.x),
-            self.rng.range(0.0, WORLD_MAX.y),
-            self.rng.range(0.0, WORLD_MAX.z),
-        )
-    }
-
     /// One frame of `pattern`; returns the time the trees' maintenance took
     /// (updates, inserts, removals and repair), in ms.
     fn advance(&mut self, pattern: Pattern) -> f64 {
@@ -182,7 +174,7 @@ impl World {
                 if pattern == Pattern::Teleports {
                     for _ in 0..n / 100 {
                         let i = self.rng.below(n);
-                        let to = self.random_point();
+                        let to = self.rng.point_in_world();
                         self.place(i, to, &mut moves);
                     }
                 }
@@ -191,7 +183,7 @@ impl World {
                 for _ in 0..n / 100 {
                     let i = self.rng.below(n);
                     self.all.remove(self.ids[i]).unwrap();
-                    self.centres[i] = self.random_point();
+                    self.centres[i] = self.rng.point_in_world();
                     self.ids[i] = self.all.insert(i as u32, self.aabb(i)).unwrap();
                 }
             }
@@ -424,11 +416,7 @@ fn run(
         coherent: scene.coherent_rays_from(scene.clear_eye()),
         boxes: (0..1_000)
             .map(|_| {
-                let c = Vec3::new(
-                    rng.range(0.0, WORLD_MAX.x),
-                    rng.range(0.0, WORLD_MAX.y),
-                    rng.range(0.0, WORLD_MAX.z),
-                );
+                let c = rng.point_in_world();
                 Aabb {
                     min: c - Vec3::splat(5.0),
                     max: c + Vec3::splat(5.0),

@@ -96,11 +96,7 @@ fn query_boxes(count: usize, seed: u64) -> Vec<Aabb> {
     let mut rng = SceneRng::new(seed);
     (0..count)
         .map(|_| {
-            let c = Vec3::new(
-                rng.range(0.0, WORLD_MAX.x),
-                rng.range(0.0, WORLD_MAX.y),
-                rng.range(0.0, WORLD_MAX.z),
-            );
+            let c = rng.point_in_world();
             let mut min = c - Vec3::splat(QUERY_HALF_EXTENT);
             let mut max = c + Vec3::splat(QUERY_HALF_EXTENT);
             min.y = min.y.max(0.0);

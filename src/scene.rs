@@ -57,6 +57,15 @@ impl SceneRng {
         (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
     }
 
+    /// Uniform point of the standard scene's world, `[0, WORLD_MAX)`
+    /// (coordinates drawn x, then y, then z).
+    pub fn point_in_world(&mut self) -> Vec3 {
+        let x = self.range(0.0, WORLD_MAX.x);
+        let y = self.range(0.0, WORLD_MAX.y);
+        let z = self.range(0.0, WORLD_MAX.z);
+        Vec3::new(x, y, z)
+    }
+
     /// Uniform direction on the unit sphere.
     pub fn direction(&mut self) -> Vec3 {
         let z = self.range(-1.0, 1.0);
@@ -256,11 +265,7 @@ impl TownScene {
     pub fn incoherent_rays(&mut self, count: usize) -> Vec<Ray> {
         (0..count)
             .map(|_| Ray {
-                origin: Vec3::new(
-                    self.rng.range(0.0, WORLD_MAX.x),
-                    self.rng.range(0.0, WORLD_MAX.y),
-                    self.rng.range(0.0, WORLD_MAX.z),
-                ),
+                origin: self.rng.point_in_world(),
                 dir: self.rng.direction(),
                 max_t: 200.0,
             })

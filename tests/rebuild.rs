@@ -7,17 +7,9 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use bevy_rtree::oracle::BruteForce;
-use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
+use bevy_rtree::scene::{SceneRng, TownScene};
 use bevy_rtree::{Aabb, CullMode, ProxyId, QueryWorkspace, RTree, Ray, RebuildWork, SpatialError};
 use glam::Vec3;
-
-fn random_point(rng: &mut SceneRng) -> Vec3 {
-    Vec3::new(
-        rng.range(0.0, WORLD_MAX.x),
-        rng.range(0.0, WORLD_MAX.y),
-        rng.range(0.0, WORLD_MAX.z),
-    )
-}
 
 fn cube(centre: Vec3, half: f32) -> Aabb {
     Aabb::new(centre - half, centre + half).unwrap()
@@ -73,7 +65,7 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
             let (_, now) = tree.get(id).unwrap();
             let moved = match rng.below(10) {
                 // A teleport.
-                0 => cube(random_point(&mut rng), rng.range(0.25, 3.0)),
+                0 => cube(rng.point_in_world(), rng.range(0.25, 3.0)),
                 // A step.
                 _ => {
                     let step = Vec3::new(rng.range(-0.3, 0.3), 0.0, rng.range(-0.3, 0.3));
@@ -90,7 +82,7 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
                 oracle.remove(key);
                 retired.push(id);
             }
-            let aabb = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+            let aabb = cube(rng.point_in_world(), rng.range(0.25, 3.0));
             handles.insert(next_key, tree.insert(next_key, aabb).unwrap());
             oracle.insert(next_key, aabb);
             next_key += 1;
@@ -136,9 +128,9 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
         for &id in retired.iter().rev().take(20) {
             assert_eq!(tree.get(id), Err(SpatialError::UnknownProxy));
         }
-        let query = cube(random_point(&mut rng), 40.0);
+        let query = cube(rng.point_in_world(), 40.0);
         assert_eq!(tree.overlapping(&query), oracle.overlapping(&query));
-        let ray = Ray::new(random_point(&mut rng), rng.direction(), 500.0).unwrap();
+        let ray = Ray::new(rng.point_in_world(), rng.direction(), 500.0).unwrap();
         assert_eq!(tree.cast_ray(&ray, &mut ws), oracle.ray_first(&ray));
         let frustum = scene.frustum();
         assert_eq!(
@@ -240,7 +232,7 @@ fn a_rebuild_in_steps_builds_what_rebuild_builds() {
     let mut rng = SceneRng::new(4);
     for _ in 0..3_000 {
         let i = rng.below(boxes.len());
-        boxes[i] = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+        boxes[i] = cube(rng.point_in_world(), rng.range(0.25, 3.0));
         tree.update(ids[i], boxes[i]).unwrap();
     }
     let mut at_once = tree.clone();
@@ -259,7 +251,7 @@ fn a_rebuild_in_steps_builds_what_rebuild_builds() {
         assert_eq!(tree.nodes_at_level(level), at_once.nodes_at_level(level));
     }
     for _ in 0..50 {
-        let query = cube(random_point(&mut rng), 25.0);
+        let query = cube(rng.point_in_world(), 25.0);
         same_box_query(&tree, &at_once, &query);
     }
     // Every handle still names its entry.
@@ -319,13 +311,13 @@ fn changes_waiting_for_the_swap_are_spread_over_steps() {
             let id = handles.remove(&key).unwrap();
             assert_eq!(tree.remove(id), Ok(key));
             oracle.remove(key);
-            let aabb = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+            let aabb = cube(rng.point_in_world(), rng.range(0.25, 3.0));
             handles.insert(next_key, tree.insert(next_key, aabb).unwrap());
             oracle.insert(next_key, aabb);
             next_key += 1;
             let key = keys[rng.below(keys.len())];
             if let Some(&id) = handles.get(&key) {
-                let aabb = cube(random_point(&mut rng), rng.range(0.25, 3.0));
+                let aabb = cube(rng.point_in_world(), rng.range(0.25, 3.0));
                 tree.update(id, aabb).unwrap();
                 oracle.update(key, aabb);
             }
@@ -347,9 +339,9 @@ fn changes_waiting_for_the_swap_are_spread_over_steps() {
         let swapped = tree.step_rebuild(Duration::ZERO);
         tree.validate().unwrap();
         assert_eq!(tree.len(), oracle.len());
-        let query = cube(random_point(&mut probe), 60.0);
+        let query = cube(probe.point_in_world(), 60.0);
         assert_eq!(tree.overlapping(&query), oracle.overlapping(&query));
-        let ray = Ray::new(random_point(&mut probe), probe.direction(), 800.0).unwrap();
+        let ray = Ray::new(probe.point_in_world(), probe.direction(), 800.0).unwrap();
         assert_eq!(tree.cast_ray(&ray, &mut ws), oracle.ray_first(&ray));
         if swapped {
             break;

@@ -14,10 +14,9 @@ mod rebuild_thread;
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
-use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
+use bevy_rtree::scene::{SceneRng, TownScene};
 use bevy_rtree::{Aabb, JoinMode, ProxyId, QueryWorkspace, RTree, Ray, RayMode, RayResults};
 use bevy_rtree::{RebuildWork, TreeSettings};
-use glam::Vec3;
 use rebuild_thread::keep_fresh_on_a_thread;
 
 use crate::{SEED, mean};
@@ -151,11 +150,7 @@ pub fn measure(count: usize) -> Vec<SessionRow> {
         for _ in 0..count * TELEPORTS_PER_MILLE / 1_000 {
             let i = rng.below(count);
             let half = (boxes[i].max - boxes[i].min) * 0.5;
-            let to = Vec3::new(
-                rng.range(0.0, WORLD_MAX.x),
-                rng.range(0.0, WORLD_MAX.y),
-                rng.range(0.0, WORLD_MAX.z),
-            );
+            let to = rng.point_in_world();
             moves.push((
                 i as u32,
                 Aabb {
@@ -189,11 +184,7 @@ pub fn measure(count: usize) -> Vec<SessionRow> {
         .expect("valid boxes");
     let queries: Vec<Aabb> = (0..1_000)
         .map(|_| {
-            let c = Vec3::new(
-                rng.range(0.0, WORLD_MAX.x),
-                rng.range(0.0, WORLD_MAX.y),
-                rng.range(0.0, WORLD_MAX.z),
-            );
+            let c = rng.point_in_world();
             Aabb {
                 min: c - 5.0,
                 max: c + 5.0,

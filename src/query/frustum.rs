@@ -73,6 +73,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         frustums: &[Frustum],
         mode: CullMode,
         ws: &mut QueryWorkspace,
+        visit: F,
+    ) where
+        F: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
+    {
+        self.cull_in_passes::<true, F>(frustums, mode, ws, visit);
+    }
+
+    /// One traversal per [`FRUSTUMS_PER_PASS`] frustums, the visitor given
+    /// each frustum's index in `frustums`; stops at a `Break`. `BOXES`
+    /// false: the visitor reads no box of an entry in a subtree reported
+    /// whole (see [`RTree::emit_subtree`]).
+    fn cull_in_passes<const BOXES: bool, F>(
+        &self,
+        frustums: &[Frustum],
+        mode: CullMode,
+        ws: &mut QueryWorkspace,
         mut visit: F,
     ) where
         F: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
@@ -81,7 +97,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let first_view = chunk * FRUSTUMS_PER_PASS;
             let prepared: Vec<PreparedView> =
                 views.iter().map(|f| PreparedView::new(f, mode)).collect();
-            let flow = self.cull_pass::<true, _>(&prepared, ws, &mut |view, key, aabb| {
+            let flow = self.cull_pass::<BOXES, _>(&prepared, ws, &mut |view, key, aabb| {
                 visit(first_view + view, key, aabb)
             });
             if flow.is_break() {
@@ -117,17 +133,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<Vec<K>>,
     ) {
         out.resize_with(frustums.len(), Vec::new);
-        for (chunk, views) in frustums.chunks(FRUSTUMS_PER_PASS).enumerate() {
-            let first_view = chunk * FRUSTUMS_PER_PASS;
-            let prepared: Vec<PreparedView> =
-                views.iter().map(|f| PreparedView::new(f, mode)).collect();
-            // Keys only: subtrees reported whole are read for their links,
-            // not their boxes (two lines of a leaf's eight).
-            let _ = self.cull_pass::<false, _>(&prepared, ws, &mut |view, key, _| {
-                out[first_view + view].push(key);
-                ControlFlow::Continue(())
-            });
-        }
+        // Keys only: subtrees reported whole are read for their links, not
+        // their boxes (two lines of a leaf's eight).
+        self.cull_in_passes::<false, _>(frustums, mode, ws, |view, key, _| {
+            out[view].push(key);
+            ControlFlow::Continue(())
+        });
     }
 
     /// The keys visible in one frustum, sorted.
