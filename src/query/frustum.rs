@@ -41,7 +41,7 @@ pub enum CullMode {
 pub const FRUSTUMS_PER_PASS: usize = 8;
 
 /// Bit set in a frustum's mask byte while the frustum still sees the subtree.
-const ALIVE: u64 = 0x80;
+pub(super) const ALIVE: u64 = 0x80;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Calls `visit(view, key, exact_box)` for every entry visible in
@@ -165,11 +165,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     where
         V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
     {
-        ws.cull_stack.clear();
-        if let Some(start) = self.cull_start(views) {
-            ws.cull_stack.push(start);
+        match self.cull_start(views) {
+            Some(start) => self.cull_subtree::<BOXES, V>(views, start, ws, visit),
+            None => ControlFlow::Continue(()),
         }
-        self.cull_drain::<BOXES, V>(views, ws, visit)
     }
 
     /// The root with every view's active planes, or `None` when no view can
@@ -182,51 +181,21 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         (start_mask != 0).then_some((self.root(), start_mask))
     }
 
-    /// Runs the traversal until the workspace's stack is empty. `BOXES`
-    /// false: the caller reads no box of an entry in a subtree reported
-    /// whole (see [`RTree::emit_subtree`]).
-    pub(crate) fn cull_drain<const BOXES: bool, V>(
-        &self,
-        views: &[PreparedView],
-        ws: &mut QueryWorkspace,
-        visit: &mut V,
-    ) -> ControlFlow<()>
-    where
-        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    {
-        while let Some(item) = ws.cull_stack.pop() {
-            self.cull_step::<BOXES, V>(views, item, ws, visit)?;
-        }
-        ControlFlow::Continue(())
-    }
-
-    /// One node: its lanes against the planes each view still needs. A node
-    /// inside every plane of every view still alive reports its whole
-    /// subtree; otherwise a leaf reports its visible entries and an internal
-    /// node pushes its visible children onto the stack (and reports nothing).
-    pub(crate) fn cull_step<const BOXES: bool, V>(
+    /// Pushes onto `out`, in lane order (the order a stack reports last
+    /// first), the children of the internal node `index` that some view
+    /// alive in `mask` may see, each with the planes each view still has to
+    /// test; with `prefetch`, starts their loads (of a child every view
+    /// contains, with `BOXES` false, only its links).
+    #[inline]
+    pub(crate) fn push_visible_children<const BOXES: bool>(
         &self,
         views: &[PreparedView],
         (index, mask): CullItem,
-        ws: &mut QueryWorkspace,
-        visit: &mut V,
-    ) -> ControlFlow<()>
-    where
-        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    {
-        if fully_inside(mask) {
-            return self.emit_subtree::<BOXES, V>(index, mask, ws, visit);
-        }
+        prefetch: bool,
+        out: &mut Vec<CullItem>,
+    ) {
         let node = self.node(index);
-        ws.stats.nodes_visited += 1;
-        let used = if W == 32 {
-            u32::MAX
-        } else {
-            (1u32 << node.len()) - 1
-        };
-        if node.is_leaf() {
-            return self.cull_leaf(views, mask, node, used, ws, visit);
-        }
+        let used = node.used_lanes();
         let mut lane_masks = [0u64; W];
         for (v, view, planes) in views_alive(views, mask) {
             if planes == 0 {
@@ -247,18 +216,24 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         for (lane, &lane_mask) in lane_masks.iter().enumerate() {
             if lane_mask != 0 {
-                // Loads of the visible children overlap instead of
-                // stalling one after another when the tree is not in cache;
-                // of a child reported whole without boxes, only its links.
-                if !BOXES && fully_inside(lane_mask) {
-                    self.prefetch_node_links(node.child[lane]);
-                } else {
-                    self.prefetch_node(node.child[lane]);
+                if prefetch {
+                    self.prefetch_cull_item::<BOXES>((node.child[lane], lane_mask));
                 }
-                ws.cull_stack.push((node.child[lane], lane_mask));
+                out.push((node.child[lane], lane_mask));
             }
         }
-        ControlFlow::Continue(())
+    }
+
+    /// Starts the load of what the cull reads of `item`'s node: its links
+    /// alone where every view contains it and `BOXES` is false, the whole
+    /// node otherwise.
+    #[inline(always)]
+    pub(super) fn prefetch_cull_item<const BOXES: bool>(&self, (index, mask): CullItem) {
+        if !BOXES && fully_inside(mask) {
+            self.prefetch_node_links(index);
+        } else {
+            self.prefetch_node(index);
+        }
     }
 
     /// A leaf not inside every plane of every view: per view, its entries
@@ -270,7 +245,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// internal nodes do, made a cull of the standard scene take 61–63 µs
     /// instead of 45–46 µs.
     #[inline]
-    fn cull_leaf<V>(
+    pub(super) fn cull_leaf<V>(
         &self,
         views: &[PreparedView],
         mask: u64,
@@ -317,102 +292,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 }
 
-impl<K: Copy + Ord, const W: usize> RTree<K, W> {
-    /// Reports every entry below `index` to every view alive in `mask`, with
-    /// no further test: the subtree is inside all their planes. Same order
-    /// as the tested traversal (children pushed in lane order).
-    ///
-    /// In two passes, so that cache misses overlap instead of queueing: the
-    /// internal nodes first, gathering the leaves in reporting order and
-    /// starting their loads; then the leaves, each reported while the keys
-    /// of the leaves [`KEYS_AHEAD`] later load (keys live apart from the
-    /// leaves, one line each when the tree is cold).
-    ///
-    /// With `BOXES` false the visitor is given `Aabb::EVERYWHERE` in place
-    /// of each entry's box, and the nodes are read for their links only:
-    /// two lines of a leaf's eight when the caller keeps keys alone (a cold
-    /// cull of the standard scene 100–104 → 89–95 µs).
-    fn emit_subtree<const BOXES: bool, V>(
-        &self,
-        index: u32,
-        mask: u64,
-        ws: &mut QueryWorkspace,
-        visit: &mut V,
-    ) -> ControlFlow<()>
-    where
-        V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
-    {
-        let alive = alive_views(mask);
-        let mut stack = std::mem::take(&mut ws.stack);
-        let mut leaves = std::mem::take(&mut ws.leaves);
-        stack.clear();
-        leaves.clear();
-        if self.node(index).is_leaf() {
-            leaves.push(index);
-        } else {
-            stack.push(index);
-        }
-        while let Some(index) = stack.pop() {
-            let node = self.node(index);
-            ws.stats.nodes_visited += 1;
-            let children = &node.child[..node.len()];
-            for &child in children {
-                if BOXES {
-                    self.prefetch_node(child);
-                } else {
-                    self.prefetch_node_links(child);
-                }
-            }
-            if node.level == 1 {
-                // A stack would report the last child first.
-                leaves.extend(children.iter().rev());
-            } else {
-                stack.extend_from_slice(children);
-            }
-        }
-        for &leaf in leaves.iter().take(KEYS_AHEAD) {
-            self.prefetch_keys_of_leaf(self.node(leaf));
-        }
-        let mut flow = ControlFlow::Continue(());
-        'leaves: for (n, &leaf) in leaves.iter().enumerate() {
-            if let Some(&ahead) = leaves.get(n + KEYS_AHEAD) {
-                self.prefetch_keys_of_leaf(self.node(ahead));
-            }
-            let node = self.node(leaf);
-            ws.stats.nodes_visited += 1;
-            for lane in 0..node.len() {
-                let key = self.key_of(node.child[lane]);
-                let aabb = if BOXES {
-                    node.lane_box(lane)
-                } else {
-                    crate::Aabb::EVERYWHERE
-                };
-                let mut views = alive;
-                while views != 0 {
-                    let view = views.trailing_zeros() as usize;
-                    views &= views - 1;
-                    flow = visit(view, key, &aabb);
-                    if flow.is_break() {
-                        break 'leaves;
-                    }
-                }
-            }
-        }
-        ws.stack = stack;
-        ws.leaves = leaves;
-        flow
-    }
-}
-
-/// How many leaves ahead of the one reported [`RTree::emit_subtree`] asks
-/// for the keys (4 before leaves reported without boxes took less time
-/// each; with them, 8 measured 2 % faster warm and 3 % cold).
-pub(super) const KEYS_AHEAD: usize = 8;
-
 /// The views alive in `mask`, each with its index and the planes it still
 /// has to test.
 #[inline]
-fn views_alive(
+pub(super) fn views_alive(
     views: &[PreparedView],
     mask: u64,
 ) -> impl Iterator<Item = (usize, &PreparedView, u8)> {
@@ -424,12 +307,14 @@ fn views_alive(
 
 /// The views alive in a mask, one bit per view.
 #[inline]
-fn alive_views(mask: u64) -> u32 {
-    let mut views = 0u32;
-    for view in 0..FRUSTUMS_PER_PASS {
-        views |= (((mask >> (8 * view)) & ALIVE != 0) as u32) << view;
-    }
-    views
+pub(super) fn alive_views(mask: u64) -> u32 {
+    // Each byte's alive bit moved to the byte's lowest bit; the product
+    // then gathers byte `v`'s bit at bit `56 + v`, the partial sums never
+    // meeting (the bits land at distinct positions, so nothing carries).
+    const ONE_PER_BYTE: u64 = 0x0101_0101_0101_0101;
+    const GATHER: u64 = 0x0102_0408_1020_4080;
+    const _: () = assert!(ALIVE == 0x80 && FRUSTUMS_PER_PASS == 8);
+    ((((mask >> 7) & ONE_PER_BYTE).wrapping_mul(GATHER)) >> 56) as u32
 }
 
 /// Whether every view alive in `mask` has no plane left to test: the node

@@ -3,7 +3,8 @@
 //! engine's culling, whose exact test then decides only the unproven).
 
 use super::QueryWorkspace;
-use super::frustum::{CullMode, KEYS_AHEAD, PreparedView};
+use super::frustum::{CullMode, PreparedView};
+use super::frustum_levels::KEYS_AHEAD;
 use crate::geometry::Frustum;
 use crate::tree::RTree;
 

@@ -7,6 +7,7 @@
 //! every frame do not allocate.
 
 mod frustum;
+mod frustum_levels;
 mod frustum_proof;
 mod join;
 #[cfg(target_arch = "x86_64")]

@@ -467,10 +467,8 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             // A subtree inside every plane is reported at once.
             |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
             |item, pushed| {
-                ws.cull_stack.clear();
-                let _ =
-                    self.cull_step::<false, _>(views, item, ws, &mut |_, _, _| reports_nothing(()));
-                pushed.extend_from_slice(&ws.cull_stack);
+                ws.stats.nodes_visited += 1;
+                self.push_visible_children::<false>(views, item, true, pushed);
             },
         );
         let frontier = &pws.cull_frontier[0];
@@ -483,13 +481,12 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             task.ends.clear();
         }
         run_claimed(frontier, tasks, |&item, task| {
-            task.ws.cull_stack.clear();
-            task.ws.cull_stack.push(item);
             let keys = &mut task.keys;
-            let _ = self.cull_drain::<false, _>(views, &mut task.ws, &mut |view, key, _| {
-                keys[view].push(key);
-                ControlFlow::Continue(())
-            });
+            let _ =
+                self.cull_subtree::<false, _>(views, item, &mut task.ws, &mut |view, key, _| {
+                    keys[view].push(key);
+                    ControlFlow::Continue(())
+                });
             task.ends.extend(keys.iter().map(Vec::len));
         });
         let owner = &mut pws.owner;

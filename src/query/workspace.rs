@@ -28,8 +28,10 @@ use crate::tree::QueryStats;
 pub struct QueryWorkspace {
     /// Depth-first traversal stack of node indices; grows, never drops work.
     pub(crate) stack: Vec<u32>,
-    /// Frustum traversal stack: node index and per-view plane masks.
+    /// Frustum traversal, one level of the tree at a time: the nodes of
+    /// this level and of the next, each with its per-view plane masks.
     pub(crate) cull_stack: Vec<(u32, u64)>,
+    pub(crate) cull_level: Vec<(u32, u64)>,
     /// The leaves of a subtree reported whole, in the order they report.
     pub(crate) leaves: Vec<u32>,
     /// Single-ray traversal: a stack of node indices and their entry `t`,

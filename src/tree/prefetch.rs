@@ -64,10 +64,14 @@ impl<K, const W: usize> RTree<K, W> {
     }
 
     /// Asks the CPU to start loading the keys of a leaf's entries, which
-    /// live apart from the leaf (one array indexed by proxy) and, in a
-    /// tree loaded in any other order than space, each on its own line:
-    /// read one after another when the tree is cold, they would each wait
-    /// their turn. A hint only; a node index outside the pool is ignored.
+    /// live apart from the leaf (one array indexed by proxy): the lines of
+    /// its first and last key. A leaf as bulk loading fills it (slots given
+    /// in leaf order) has its keys in one run between them, a line or two.
+    /// A leaf whose entries came since, from moves and inserts, gets two of
+    /// its keys asked for and the others read when reached: asking for every
+    /// key of such leaves cost a cull of the standard scene's maintained
+    /// tree 13 % more warm and gained nothing cold (57 → 54 µs without).
+    /// A hint only.
     #[inline(always)]
     pub(crate) fn prefetch_keys_of_leaf(&self, leaf: &super::node::Node<W>) {
         let keys = self.keys.as_ptr();
@@ -77,16 +81,8 @@ impl<K, const W: usize> RTree<K, W> {
         };
         // No bounds checks: a prefetch of any address is sound (see
         // `prefetch_address`), and a leaf's slots index `keys`.
-        if last.abs_diff(first) as usize == slots.len() - 1 {
-            // A leaf as bulk loading fills it (slots given in leaf order):
-            // its keys are one run, a line or two.
-            prefetch_address(keys.wrapping_add(first as usize).cast());
-            prefetch_address(keys.wrapping_add(last as usize).cast());
-            return;
-        }
-        for &slot in slots {
-            prefetch_address(keys.wrapping_add(slot as usize).cast());
-        }
+        prefetch_address(keys.wrapping_add(first as usize).cast());
+        prefetch_address(keys.wrapping_add(last as usize).cast());
     }
 
     /// Asks the CPU to start loading what checking a handle of slot `index`
