@@ -12,7 +12,11 @@
 //! `-- --rebuild-us 100` keeps every tree rebuilt when worn
 //! (`RTree::rebuild_when_worn`) in slices of 100 µs a frame, and
 //! `-- --work-away` with it runs each rebuild's work on another thread
-//! as the plugin does on Bevy's async pool (`RTree::take_rebuild_work`); `-- --retiled` adds a row for the maintained trees
+//! as the plugin does on Bevy's async pool (`RTree::take_rebuild_work`);
+//! `-- --frame-ms 16.7` gives each frame that length, the rest after the
+//! maintenance spent waiting on this thread as a game's other systems
+//! would, so that a rebuild on another thread spans as many frames as in a
+//! game at that rate instead of the many short frames of a bare loop; `-- --retiled` adds a row for the maintained trees
 //! retiled at the end, each entry keeping its enlarged box; words after
 //! `--` pick patterns by name). Beside the times, the nodes all families
 //! visited, maintained ÷ fresh: the same ratio without the timer's noise. Deterministic
@@ -394,12 +398,19 @@ fn run(
     rebuild_budget: Option<std::time::Duration>,
     work_away: bool,
     retiled: bool,
+    frame_length: Option<std::time::Duration>,
 ) {
     let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
     let mut world = World::new(&scene, rebuild_budget, work_away);
     let mut maintenance = Vec::new();
     for _ in 0..frames {
+        let start = Instant::now();
         maintenance.push(world.advance(pattern));
+        // The rest of a game's frame, on this thread: the rebuild's worker
+        // runs meanwhile, as it would beside the game's own systems.
+        while frame_length.is_some_and(|length| start.elapsed() < length) {
+            std::hint::spin_loop();
+        }
     }
     let tail = &maintenance[maintenance.len().saturating_sub(200)..];
     let per_frame = tail.iter().sum::<f64>() / tail.len() as f64;
@@ -502,17 +513,32 @@ fn main() {
         .map(std::time::Duration::from_micros);
     let retiled = args.iter().any(|a| a == "--retiled");
     let work_away = args.iter().any(|a| a == "--work-away");
+    let frame_length = args
+        .iter()
+        .position(|a| a == "--frame-ms")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse::<f64>().ok())
+        .map(|ms| std::time::Duration::from_secs_f64(ms / 1e3));
+    // Pattern names: the words that are neither options nor their values.
+    let takes_value =
+        |option: &String| ["--frames", "--rebuild-us", "--frame-ms"].contains(&&**option);
     let picked: Vec<&String> = args
         .iter()
-        .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
+        .enumerate()
+        .filter(|&(i, a)| !a.starts_with("--") && (i == 0 || !takes_value(&args[i - 1])))
+        .map(|(_, a)| a)
         .collect();
     println!(
         "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 \
-         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame{}",
+         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame{}{}",
         if work_away {
             ", the work on another thread"
         } else {
             ""
+        },
+        match frame_length {
+            Some(length) => format!("; each frame {length:?} long, the rest spent waiting"),
+            None => String::new(),
         }
     );
     println!();
@@ -527,7 +553,14 @@ fn main() {
     for pattern in PATTERNS {
         let name = format!("{pattern:?}").to_lowercase();
         if picked.is_empty() || picked.iter().any(|p| name.contains(&p.to_lowercase())) {
-            run(pattern, frames, rebuild_budget, work_away, retiled);
+            run(
+                pattern,
+                frames,
+                rebuild_budget,
+                work_away,
+                retiled,
+                frame_length,
+            );
         }
     }
 }
