@@ -83,7 +83,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// One traversal per [`FRUSTUMS_PER_PASS`] frustums, the visitor given
     /// each frustum's index in `frustums`; stops at a `Break`. `BOXES`
     /// false: the visitor reads no box of an entry in a subtree reported
-    /// whole (see [`RTree::emit_subtree`]).
+    /// whole (see [`RTree::cull_subtree`]).
     fn cull_in_passes<const BOXES: bool, F>(
         &self,
         frustums: &[Frustum],
@@ -496,5 +496,21 @@ mod tests {
         lanes_agree_with_the_scalar_predicates::<4>();
         lanes_agree_with_the_scalar_predicates::<8>();
         lanes_agree_with_the_scalar_predicates::<16>();
+    }
+
+    /// The gathered alive bits are the bytes' alive bits, one by one.
+    #[test]
+    fn alive_views_gathers_each_byte_s_alive_bit() {
+        let mut rng = crate::scene::SceneRng::new(3);
+        for _ in 0..10_000 {
+            let mask = rng.next_u64();
+            let mut want = 0u32;
+            for view in 0..FRUSTUMS_PER_PASS {
+                if (mask >> (8 * view)) & ALIVE != 0 {
+                    want |= 1 << view;
+                }
+            }
+            assert_eq!(alive_views(mask), want, "{mask:#x}");
+        }
     }
 }

@@ -60,6 +60,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             .is_some_and(|&(index, _)| !self.node(index).is_leaf())
         {
             next.clear();
+            debug_assert!(
+                level
+                    .iter()
+                    .all(|&(index, _)| self.node(index).level == self.node(level[0].0).level),
+                "a level's list holds nodes of one level"
+            );
             // Leaves are asked for as they come near in `report_leaves`:
             // asked for all at once, the first would leave the first-level
             // cache before their turn.
@@ -102,6 +108,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         for &item in leaves.iter().rev().take(NODES_AHEAD) {
             self.prefetch_cull_item::<BOXES>(item);
         }
+        for &(leaf, _) in leaves.iter().rev().take(KEYS_AHEAD) {
+            self.prefetch_keys_of_leaf(self.node(leaf));
+        }
         for n in (0..leaves.len()).rev() {
             if let Some(ahead) = n.checked_sub(NODES_AHEAD) {
                 self.prefetch_cull_item::<BOXES>(leaves[ahead]);
@@ -143,10 +152,10 @@ mod tests {
 
     use glam::{Quat, Vec3};
 
-    use crate::geometry::Frustum;
-    use crate::geometry::predicates::frustum_conservative;
+    use crate::geometry::predicates::{frustum_conservative, frustum_exact};
+    use crate::geometry::{Frustum, FrustumSat};
     use crate::query::QueryWorkspace;
-    use crate::query::frustum::{ALIVE, CullMode, FRUSTUMS_PER_PASS, alive_views};
+    use crate::query::frustum::CullMode;
     use crate::scene::{SceneRng, TownScene};
     use crate::tree::RTree;
 
@@ -166,10 +175,19 @@ mod tests {
         }
     }
 
+    /// Whether `mode`'s scalar test accepts `aabb` in `view`.
+    fn accepts(view: &Frustum, mode: CullMode, aabb: &crate::Aabb) -> bool {
+        match mode {
+            CullMode::Conservative => frustum_conservative(view, aabb),
+            CullMode::Exact => frustum_exact(view, &FrustumSat::new(view), aabb),
+        }
+    }
+
     /// Walked level by level, the cull reports what the scalar test
     /// accepts, in the depth-first order, each key with its own box, on a
-    /// maintained tree (entries moved between leaves) and several views at
-    /// once.
+    /// maintained tree (entries moved between leaves), in both modes, with
+    /// one pass of views and with two; and a visitor that breaks gets
+    /// exactly the reports before its break.
     #[test]
     fn reports_in_depth_first_order_what_the_scalar_test_accepts() {
         let mut scene = TownScene::new(20_000, 5);
@@ -188,8 +206,14 @@ mod tests {
         let mut rng = SceneRng::new(17);
         let mut ws = QueryWorkspace::default();
         let mut reported = 0;
-        for _ in 0..12 {
-            let views: Vec<Frustum> = (0..3)
+        let mut breaks = 0;
+        for round in 0..12 {
+            let (mode, count) = match round % 3 {
+                0 => (CullMode::Conservative, 3),
+                1 => (CullMode::Exact, 8),
+                _ => (CullMode::Conservative, 9),
+            };
+            let views: Vec<Frustum> = (0..count)
                 .map(|_| {
                     let eye = rng.point_in_world() + Vec3::Y * rng.range(0.0, 80.0);
                     let turn = Quat::from_rotation_y(rng.range(0.0, 6.3));
@@ -200,47 +224,43 @@ mod tests {
             let want: Vec<Vec<(u32, crate::Aabb)>> = views
                 .iter()
                 .map(|view| {
-                    let seen = all
-                        .iter()
-                        .filter(|(_, aabb)| frustum_conservative(view, aabb));
+                    let seen = all.iter().filter(|(_, aabb)| accepts(view, mode, aabb));
                     seen.copied().collect()
                 })
                 .collect();
             let mut keys = Vec::new();
-            tree.visible_into(&views, CullMode::Conservative, &mut ws, &mut keys);
+            tree.visible_into(&views, mode, &mut ws, &mut keys);
             let mut with_boxes = vec![Vec::new(); views.len()];
-            tree.visit_visible(
-                &views,
-                CullMode::Conservative,
-                &mut ws,
-                |view, key, aabb| {
-                    with_boxes[view].push((key, *aabb));
-                    ControlFlow::Continue(())
-                },
-            );
+            let mut sequence = Vec::new();
+            tree.visit_visible(&views, mode, &mut ws, |view, key, aabb| {
+                with_boxes[view].push((key, *aabb));
+                sequence.push((view, key));
+                ControlFlow::Continue(())
+            });
             for (view, want) in want.iter().enumerate() {
                 let want_keys: Vec<u32> = want.iter().map(|w| w.0).collect();
-                assert_eq!(keys[view], want_keys);
-                assert_eq!(&with_boxes[view], want);
+                assert_eq!(keys[view], want_keys, "round {round} view {view}");
+                assert_eq!(&with_boxes[view], want, "round {round} view {view}");
                 reported += want.len();
             }
+            // Broken off at a random report: the same reports up to it.
+            if sequence.is_empty() {
+                continue;
+            }
+            let cut = rng.below(sequence.len());
+            let mut before = Vec::new();
+            tree.visit_visible(&views, mode, &mut ws, |view, key, _| {
+                before.push((view, key));
+                if before.len() > cut {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            });
+            assert_eq!(before, sequence[..=cut], "round {round}");
+            breaks += 1;
         }
         assert!(reported > 10_000, "the views see enough: {reported}");
-    }
-
-    /// The gathered alive bits are the bytes' alive bits, one by one.
-    #[test]
-    fn alive_views_gathers_each_byte_s_alive_bit() {
-        let mut rng = SceneRng::new(3);
-        for _ in 0..10_000 {
-            let mask = rng.next_u64();
-            let mut want = 0u32;
-            for view in 0..FRUSTUMS_PER_PASS {
-                if (mask >> (8 * view)) & ALIVE != 0 {
-                    want |= 1 << view;
-                }
-            }
-            assert_eq!(alive_views(mask), want, "{mask:#x}");
-        }
+        assert!(breaks >= 10, "breaks tried: {breaks}");
     }
 }

@@ -68,11 +68,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
-    /// Reports every entry below `index` as contained, in two passes as
-    /// the cull reports a subtree whole: the internal nodes first, their
-    /// children's links requested and the leaves gathered; then the leaves,
-    /// the keys of the leaf [`KEYS_AHEAD`] places on requested as each is
-    /// reported.
+    /// Reports every entry below `index` as contained, in two passes: the
+    /// internal nodes first, their children's links requested and the
+    /// leaves gathered; then the leaves, the keys of the leaf
+    /// [`KEYS_AHEAD`] places on requested as each is reported.
     #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
     fn report_contained(
         &self,

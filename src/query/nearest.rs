@@ -15,10 +15,10 @@
 //! the lanes in it take the exact `f64` test. Measured on the standard
 //! scene (`cargo bench --bench proximity`), 1,000 queries for the 8
 //! nearest: 2.81 ms with the earlier best-first search, whose priority
-//! queue took a push for every child within the limit, and 2.21 ms now,
-//! although the depth-first walk visits more nodes (14.9 against about 13
-//! per query). Moving only the nearest child to the top, unsorted
-//! otherwise, took the same time for 16.1 nodes per query.
+//! queue took a push for every child within the limit, and 2.21 ms with
+//! this depth-first walk, although it visits more nodes (14.9 against
+//! about 13 per query); 1.38 ms since the changes described at
+//! [`nearest_on_top`] and [`SORTED_UP_TO`].
 
 use std::cmp::Ordering;
 use std::ops::ControlFlow;

@@ -28,9 +28,11 @@ use crate::tree::QueryStats;
 pub struct QueryWorkspace {
     /// Depth-first traversal stack of node indices; grows, never drops work.
     pub(crate) stack: Vec<u32>,
-    /// Frustum traversal, one level of the tree at a time: the nodes of
-    /// this level and of the next, each with its per-view plane masks.
+    /// Frustum traversal: nodes with their per-view plane masks. The cull
+    /// (`frustum_levels.rs`) keeps one level of the tree here, in the order
+    /// of a depth-first stack; the proving cull uses it as its stack.
     pub(crate) cull_stack: Vec<(u32, u64)>,
+    /// The cull's next level, built from `cull_stack`'s.
     pub(crate) cull_level: Vec<(u32, u64)>,
     /// The leaves of a subtree reported whole, in the order they report.
     pub(crate) leaves: Vec<u32>,
