@@ -120,12 +120,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
             let (index, mask) = leaves[n];
             let node = self.node(index);
+            ws.stats.nodes_visited += 1;
             if !fully_inside(mask) {
-                ws.stats.nodes_visited += 1;
                 self.cull_leaf(views, mask, node, node.used_lanes(), ws, visit)?;
                 continue;
             }
-            ws.stats.nodes_visited += 1;
             let alive = alive_views(mask);
             for lane in 0..node.len() {
                 let key = self.key_of(node.child[lane]);
