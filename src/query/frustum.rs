@@ -185,7 +185,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// first), the children of the internal node `index` that some view
     /// alive in `mask` may see, each with the planes each view still has to
     /// test; with `prefetch`, starts their loads (of a child every view
-    /// contains, with `BOXES` false, only its links).
+    /// contains, with `BOXES` false, only its links). A node every view
+    /// contains passes its mask to all its children untested.
     #[inline]
     pub(crate) fn push_visible_children<const BOXES: bool>(
         &self,
@@ -195,6 +196,16 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<CullItem>,
     ) {
         let node = self.node(index);
+        if fully_inside(mask) {
+            let children = &node.child[..node.len()];
+            if prefetch {
+                for &child in children {
+                    self.prefetch_cull_item::<BOXES>((child, mask));
+                }
+            }
+            out.extend(children.iter().map(|&child| (child, mask)));
+            return;
+        }
         let used = node.used_lanes();
         let mut lane_masks = [0u64; W];
         for (v, view, planes) in views_alive(views, mask) {
@@ -250,13 +261,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         views: &[PreparedView],
         mask: u64,
         node: &Node<W>,
-        used: u32,
         ws: &mut QueryWorkspace,
         visit: &mut V,
     ) -> ControlFlow<()>
     where
         V: FnMut(usize, K, &crate::Aabb) -> ControlFlow<()>,
     {
+        let used = node.used_lanes();
         let mut tested = false;
         for (v, view, planes) in views_alive(views, mask) {
             // Only the exact mode's extra test needs to know which planes

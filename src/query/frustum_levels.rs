@@ -70,20 +70,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             // asked for all at once, the first would leave the first-level
             // cache before their turn.
             let prefetch = self.node(level[0].0).level > 1;
-            for &(index, mask) in &level {
+            for &item in &level {
                 ws.stats.nodes_visited += 1;
-                let node = self.node(index);
-                if fully_inside(mask) {
-                    let children = &node.child[..node.len()];
-                    if prefetch {
-                        for &child in children {
-                            self.prefetch_cull_item::<BOXES>((child, mask));
-                        }
-                    }
-                    next.extend(children.iter().map(|&child| (child, mask)));
-                } else {
-                    self.push_visible_children::<BOXES>(views, (index, mask), prefetch, &mut next);
-                }
+                self.push_visible_children::<BOXES>(views, item, prefetch, &mut next);
             }
             std::mem::swap(&mut level, &mut next);
         }
@@ -122,7 +111,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let node = self.node(index);
             ws.stats.nodes_visited += 1;
             if !fully_inside(mask) {
-                self.cull_leaf(views, mask, node, node.used_lanes(), ws, visit)?;
+                self.cull_leaf(views, mask, node, ws, visit)?;
                 continue;
             }
             let alive = alive_views(mask);
