@@ -19,8 +19,12 @@
 //! game at that rate instead of the many short frames of a bare loop; `-- --retiled` adds a row for the maintained trees
 //! retiled at the end, each entry keeping its enlarged box; words after
 //! `--` pick patterns by name). Beside the times, the nodes all families
-//! visited, maintained ÷ fresh: the same ratio without the timer's noise. Deterministic
-//! from the seed, apart from where the time-budgeted slices end.
+//! visited, maintained ÷ fresh: the same ratio without the timer's noise;
+//! and that ratio over every tenth of the last 200 frames, each against a
+//! fresh load of that frame's entries (a rebuilt tree wears until its next
+//! swap, and one look at the end may land anywhere on that saw-tooth).
+//! Deterministic from the seed, apart from where the time-budgeted slices
+//! end.
 
 #[path = "common/rebuild_thread.rs"]
 mod rebuild_thread;
@@ -328,9 +332,32 @@ const FAMILIES: [&str; 6] = [
     "1,000 box queries",
 ];
 
+/// How many of the last frames the nodes are counted over, and how
+/// often.
+const SAMPLED_FRAMES: u32 = 200;
+const SAMPLE_EVERY: u32 = 10;
+
 impl Queries {
+    fn new(scene: &mut TownScene) -> Queries {
+        let mut rng = SceneRng::new(SEED ^ 0xB0C5);
+        Queries {
+            frustum: scene.frustum(),
+            incoherent: scene.incoherent_rays(1_000),
+            coherent: scene.coherent_rays_from(scene.clear_eye()),
+            boxes: (0..1_000)
+                .map(|_| {
+                    let c = rng.point_in_world();
+                    Aabb {
+                        min: c - Vec3::splat(5.0),
+                        max: c + Vec3::splat(5.0),
+                    }
+                })
+                .collect(),
+        }
+    }
+
     /// Runs family `f` on `trees` and returns (ms, answer count).
-    fn run(&self, f: usize, trees: &[RTree<u32>; 3], ws: &mut QueryWorkspace) -> (f64, usize) {
+    fn run(&self, f: usize, trees: [&RTree<u32>; 3], ws: &mut QueryWorkspace) -> (f64, usize) {
         let start = Instant::now();
         let count = match f {
             0 => {
@@ -387,6 +414,20 @@ impl Queries {
     }
 }
 
+/// The nodes every family visits on each set of trees.
+fn nodes_visited(queries: &Queries, sets: [[&RTree<u32>; 3]; 2]) -> [u64; 2] {
+    let mut ws = QueryWorkspace::default();
+    sets.map(|set| {
+        (0..FAMILIES.len())
+            .map(|f| {
+                ws.take_stats();
+                queries.run(f, set, &mut ws);
+                ws.stats().nodes_visited
+            })
+            .sum()
+    })
+}
+
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -402,10 +443,23 @@ fn run(
 ) {
     let mut scene = TownScene::new(TownScene::STANDARD_COUNT, SEED);
     let mut world = World::new(&scene, rebuild_budget, work_away);
+    let queries = Queries::new(&mut scene);
     let mut maintenance = Vec::new();
-    for _ in 0..frames {
+    let mut sampled = [0u64; 2];
+    for frame in 0..frames {
         let start = Instant::now();
         maintenance.push(world.advance(pattern));
+        // A rebuilt tree wears until the next swap, so one look at the end
+        // lands anywhere on that saw-tooth: the nodes are also counted
+        // every tenth frame of the last 200, against a fresh load of the
+        // entries of that frame (in the frame's waiting time).
+        if frames - frame <= SAMPLED_FRAMES && (frames - frame) % SAMPLE_EVERY == 0 {
+            let fresh = world.fresh();
+            let maintained = [&world.all, &world.enemies, &world.barrels];
+            let counts = nodes_visited(&queries, [maintained, [&fresh[0], &fresh[1], &fresh[2]]]);
+            sampled[0] += counts[0];
+            sampled[1] += counts[1];
+        }
         // The rest of a game's frame, on this thread: the rebuild's worker
         // runs meanwhile, as it would beside the game's own systems.
         while frame_length.is_some_and(|length| start.elapsed() < length) {
@@ -420,21 +474,7 @@ fn run(
     let rebuilds = world.all.take_maintenance_stats().rebuilds;
     let fresh = world.fresh();
     let maintained = [world.all, world.enemies, world.barrels];
-    let mut rng = SceneRng::new(SEED ^ 0xB0C5);
-    let queries = Queries {
-        frustum: scene.frustum(),
-        incoherent: scene.incoherent_rays(1_000),
-        coherent: scene.coherent_rays_from(scene.clear_eye()),
-        boxes: (0..1_000)
-            .map(|_| {
-                let c = rng.point_in_world();
-                Aabb {
-                    min: c - Vec3::splat(5.0),
-                    max: c + Vec3::splat(5.0),
-                }
-            })
-            .collect(),
-    };
+    let over_the_tail = sampled[0] as f64 / sampled[1].max(1) as f64;
     let mut rows = vec![(
         "maintained",
         compare(pattern, &maintained, &fresh, &queries),
@@ -451,8 +491,13 @@ fn run(
     }
     for (label, (times, work)) in rows {
         let cells: Vec<String> = times.iter().map(|r| format!("{r:.2}")).collect();
+        let tail = if label == "maintained" {
+            format!("{over_the_tail:.2}")
+        } else {
+            String::from("–")
+        };
         println!(
-            "| {pattern:?}, {label} | {} | {work:.2} | {per_frame:.3} | {worst:.2} | {rebuilds} |",
+            "| {pattern:?}, {label} | {} | {work:.2} | {tail} | {per_frame:.3} | {worst:.2} | {rebuilds} |",
             cells.join(" | ")
         );
     }
@@ -474,6 +519,7 @@ fn compare(
         for rep in 0..7 {
             let mut run = |which: usize| {
                 let set = if which == 0 { trees } else { fresh };
+                let set = [&set[0], &set[1], &set[2]];
                 ws.take_stats();
                 let out = queries.run(f, set, &mut ws);
                 if rep == 0 {
@@ -543,11 +589,11 @@ fn main() {
     );
     println!();
     println!(
-        "| pattern | {} | nodes visited | maintenance ms/frame | worst frame ms | rebuilds |",
+        "| pattern | {} | nodes visited | nodes, last {SAMPLED_FRAMES} frames | maintenance ms/frame | worst frame ms | rebuilds |",
         FAMILIES.join(" | ")
     );
     println!(
-        "|---|{}---:|---:|---:|---:|",
+        "|---|{}---:|---:|---:|---:|---:|",
         "---:|".repeat(FAMILIES.len())
     );
     for pattern in PATTERNS {

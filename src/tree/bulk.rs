@@ -82,7 +82,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             })
             .collect();
         if tiled.len() > W {
-            let groups = Self::groups_at(0, tiled.len());
+            let groups = Self::groups_at(0, tiled.len(), W);
             tile_partition(&mut tiled, groups);
         }
         let mut slot_of = vec![0u32; entries.len()];
@@ -97,14 +97,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         self.len = tiled.len();
         // The entries are in tiling order: the first level is tiled already.
-        self.pack(tiled, true);
+        self.pack(tiled, W, true);
         slot_of.into_iter().map(|slot| self.handle(slot)).collect()
     }
 
     /// Rebuilds the whole tree by bulk loading from the entries' current
-    /// boxes, as fresh as a new tree of the same boxes: every enlarged box
-    /// starts again from the exact box and the margin, without the stretch
-    /// of past moves. Handles stay valid; answers do not change.
+    /// boxes, tiled as a new tree of the same boxes but with room for two
+    /// more entries in each leaf (14 of 16; see the performance notes): a
+    /// tree worth rebuilding keeps changing, and the room takes the
+    /// inserts and reinsertions of the frames after without splitting
+    /// leaves. Every enlarged box starts again from the exact box and the
+    /// margin, without the stretch of past moves. Handles stay valid;
+    /// answers do not change.
     pub fn rebuild(&mut self) {
         // A rebuild under way would only redo this.
         self.rebuild_job = None;
@@ -144,13 +148,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 }
             })
             .collect();
-        self.pack(level_entries, false);
+        self.pack(level_entries, Self::REBUILD_LEAF_FILL, false);
     }
 
     /// Packs entries (`child` their proxy, fresh enlarged boxes) into a
-    /// new structure, bottom-up; `tiled`: they are in the first level's
-    /// tiling order already.
-    fn pack(&mut self, mut level_entries: Vec<Entry>, tiled: bool) {
+    /// new structure, bottom-up, `leaf_fill` entries to a leaf; `tiled`:
+    /// they are in the first level's tiling order already.
+    fn pack(&mut self, mut level_entries: Vec<Entry>, leaf_fill: usize, tiled: bool) {
         self.wear = 0;
         self.nodes.clear();
         self.churn.clear();
@@ -165,7 +169,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.root = root;
                 return;
             }
-            let groups = Self::groups_at(level, level_entries.len());
+            let groups = Self::groups_at(level, level_entries.len(), leaf_fill);
             if !(tiled && level == 0) {
                 tile_partition(&mut level_entries, groups);
             }
@@ -182,8 +186,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// How many nodes bulk loading packs `entries` entries of `level` into:
-    /// full nodes, except that leaves go [`Self::LEVEL_ONE_FILL`] to a
-    /// level-1 node when that adds no level to the tree.
+    /// `leaf_fill` entries to a leaf (`W` for a fresh load,
+    /// [`Self::REBUILD_LEAF_FILL`] for a rebuild), full nodes above, except
+    /// that leaves go [`Self::LEVEL_ONE_FILL`] to a level-1 node when that
+    /// adds no level to the tree.
     ///
     /// The room left in level-1 nodes is for the first frames of movement:
     /// packed full at every level, a bulk-loaded tree lets the leaves that the
@@ -195,7 +201,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// within 1 % of the full packing's visits, rays within 3 %. 15 leaves
     /// per level-1 node gained nothing and 12 lost; room in the leaves
     /// themselves made the fresh tree worse (see `docs/performance.md`).
-    pub(super) fn groups_at(level: u16, entries: usize) -> usize {
+    pub(super) fn groups_at(level: u16, entries: usize, leaf_fill: usize) -> usize {
+        if level == 0 {
+            return entries.div_ceil(leaf_fill.clamp(1, W));
+        }
         let full = entries.div_ceil(W);
         if level != 1 {
             return full;
@@ -211,6 +220,29 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Leaves per level-1 node in a bulk-loaded tree: 14 of 16 (7 of 8, 4
     /// of 4), see [`Self::groups_at`].
     const LEVEL_ONE_FILL: usize = W - W / 8;
+
+    /// Entries per leaf in a rebuilt tree (every rebuild: at once, in
+    /// steps, on another thread, and a bulk insert into a tree that holds
+    /// entries): 14 of 16 (7 of 8, 4 of 4), where a fresh load packs
+    /// leaves full.
+    ///
+    /// A tree is rebuilt because entries keep changing place, and an
+    /// insert into a full leaf splits it into two half-full leaves whose
+    /// bounds were not tiled together: packed full, a rebuilt tree wore
+    /// back within a few frames of 1 % teleports or respawns. With room
+    /// for two, inserts land beside the entries removals left, without a
+    /// split. The decay bench at 60 Hz, 2,000 frames, the work on another
+    /// thread, nodes visited ÷ fresh over the last 200 frames, packed full
+    /// → room for two: teleports 1.35 → 1.21, respawn 1.29 → 1.18, crowd
+    /// 1.57 → 1.44, bullets 1.20 → 1.23, steps 1.09 → 1.10, vehicles 1.09
+    /// → 1.11, asleep 1.04 → 1.10; the maintenance of teleports, respawn
+    /// and bullets 5–24 % less (fewer splits), the others' the same. The
+    /// cost: rebuilt with nothing moving, the tree visits 3 % more nodes
+    /// than packed full, and a self join about 14 % more node pairs. Room
+    /// for one (15) or three (13) did worse with teleports and respawns
+    /// (1,000 frames: teleports 1.39 and 1.42 against 1.22, respawn 1.32
+    /// and 1.33 against 1.17), and 13 alone costs 17 % more nodes.
+    pub(super) const REBUILD_LEAF_FILL: usize = W - W / 8;
 
     /// Reserves room for `additional` more entries and their nodes.
     pub fn reserve(&mut self, additional: usize) {
@@ -353,6 +385,28 @@ mod tests {
         let tree = grid_tree(4096);
         assert_eq!(fills(&tree, 1), vec![16; 16]);
         assert_eq!(tree.height(), 3);
+    }
+
+    #[test]
+    fn rebuilt_leaves_keep_room_for_two_entries() {
+        let mut tree = grid_tree(20_000);
+        tree.rebuild();
+        tree.validate().unwrap();
+        let leaves = fills(&tree, 0);
+        assert_eq!(leaves.len(), 20_000usize.div_ceil(14));
+        assert!(leaves.iter().all(|&n| n <= 14), "{leaves:?}");
+        // The stepped rebuild tiles the same way.
+        let mut stepped = grid_tree(20_000);
+        stepped.start_rebuild();
+        while !stepped.step_rebuild_units(64) {}
+        stepped.validate().unwrap();
+        assert_eq!(fills(&stepped, 0), leaves);
+        // So an entry inserted among the others splits nothing.
+        let nodes = tree.node_count();
+        let between = Aabb::new(Vec3::new(1.5, 0.0, 1.5), Vec3::new(2.5, 1.0, 2.5)).unwrap();
+        tree.insert(20_000, between).unwrap();
+        tree.validate().unwrap();
+        assert_eq!(tree.node_count(), nodes);
     }
 
     #[test]

@@ -331,7 +331,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let groups = if entries.len() <= W {
             1
         } else {
-            Self::groups_at(level, entries.len())
+            Self::groups_at(level, entries.len(), Self::REBUILD_LEAF_FILL)
         };
         let cuts = vec![(0, entries.len(), 0, groups)];
         Phase::Partition {
