@@ -297,6 +297,10 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
          the queries' work grows frame after frame. The rebuild's slices cost their \
          budget on the calling thread while a rebuild runs; on another thread the \
          calling thread pays the snapshot at the start and, over the next few frames, \
-         the changes made while the work ran, applied to the new structure before the swap."
+         the changes made while the work ran, applied to the new structure before the swap. \
+         A rebuilt tree fills its leaves to 14 of 16 entries, so that the teleports after \
+         it land in the room instead of splitting leaves (rebuilt with nothing moving, \
+         a tree visits 3 % more nodes than a fresh load packed full, and its self join \
+         about 14 % more node pairs)."
     );
 }
