@@ -386,7 +386,7 @@ impl Queries {
                 let mut out = Vec::new();
                 trees[1]
                     .cross_join_into(
-                        &trees[2],
+                        trees[2],
                         TownScene::JOIN_DISTANCE,
                         JoinMode::Euclidean,
                         ws,
@@ -453,7 +453,7 @@ fn run(
         // lands anywhere on that saw-tooth: the nodes are also counted
         // every tenth frame of the last 200, against a fresh load of the
         // entries of that frame (in the frame's waiting time).
-        if frames - frame <= SAMPLED_FRAMES && (frames - frame) % SAMPLE_EVERY == 0 {
+        if frames - frame <= SAMPLED_FRAMES && (frames - frame).is_multiple_of(SAMPLE_EVERY) {
             let fresh = world.fresh();
             let maintained = [&world.all, &world.enemies, &world.barrels];
             let counts = nodes_visited(&queries, [maintained, [&fresh[0], &fresh[1], &fresh[2]]]);
