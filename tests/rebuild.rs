@@ -31,11 +31,13 @@ fn answers_and_handles_hold_while_the_work_runs_on_another_thread() {
     churn_through_rebuilds(true, 150);
 }
 
-/// The work away again, and one unit a frame after it: the catch-up with
-/// the changes made while it ran spans frames, during which entries it
-/// has written into the new structure move again.
+/// The work away again, and one unit a frame after it: the changes made
+/// while it ran are applied at the first step after it is back, however
+/// few units that step is given. (The catch-up that spans frames, during
+/// which entries already written into the new structure move again, is
+/// the builds in slices of the first test.)
 #[test]
-fn answers_and_handles_hold_while_the_catch_up_spans_frames() {
+fn answers_and_handles_hold_with_one_unit_a_frame_after_the_work() {
     churn_through_rebuilds(true, 1);
 }
 
@@ -285,14 +287,15 @@ fn slots_reused_during_a_rebuild_keep_their_handles_apart() {
     assert_eq!(tree.len(), 499);
 }
 
-/// The changes made while the work was away are applied over several
-/// steps, not in one frame: with thousands waiting and more every frame,
-/// a step that is given no time still applies its share, the swap comes
-/// within nine steps, and every frame in between answers as the oracle
-/// does from a valid tree.
-#[test]
-fn changes_waiting_for_the_swap_are_spread_over_steps() {
-    let scene = TownScene::new(20_000, 12);
+/// How a rebuild catches up with the changes made while it was built:
+/// `away`, the tiling runs at once as work taken elsewhere, with four
+/// frames of changes meanwhile; otherwise it is built in slices of four
+/// units a frame, with changes every frame. Every frame after, changes
+/// again, one step given no time, `validate()` and the oracle's answers;
+/// returns the frames from the end of the work (or from the start of the
+/// slices) to the swap, and the slices' frames with nothing changing.
+fn churn_across_a_rebuild(away: bool) -> (usize, usize) {
+    let scene = TownScene::new(if away { 20_000 } else { 2_000 }, 12);
     let (mut tree, ids) = scene.bulk_loaded_tree();
     let mut oracle = BruteForce::default();
     let mut handles: BTreeMap<u32, ProxyId> = BTreeMap::new();
@@ -323,20 +326,35 @@ fn changes_waiting_for_the_swap_are_spread_over_steps() {
             }
         }
     };
-    tree.start_rebuild();
-    let mut work = tree.take_rebuild_work().unwrap();
-    for _ in 0..4 {
-        churn(&mut tree, &mut oracle, 500);
+    let mut quiet = 0;
+    if away {
+        tree.start_rebuild();
+        let mut work = tree.take_rebuild_work().unwrap();
+        for _ in 0..4 {
+            churn(&mut tree, &mut oracle, 500);
+        }
+        work.run();
+        assert!(tree.finish_rebuild_work(work));
+    } else {
+        let mut still = tree.clone();
+        still.start_rebuild();
+        quiet = 1;
+        while !still.step_rebuild_units(4) {
+            quiet += 1;
+        }
+        tree.start_rebuild();
     }
-    work.run();
-    assert!(tree.finish_rebuild_work(work));
     let mut probe = SceneRng::new(22);
-    let mut steps = 0;
+    let mut frames = 0;
     let mut ws = QueryWorkspace::default();
     loop {
-        churn(&mut tree, &mut oracle, 100);
-        steps += 1;
-        let swapped = tree.step_rebuild(Duration::ZERO);
+        churn(&mut tree, &mut oracle, if away { 100 } else { 10 });
+        frames += 1;
+        let swapped = if away {
+            tree.step_rebuild(Duration::ZERO)
+        } else {
+            tree.step_rebuild_units(4)
+        };
         tree.validate().unwrap();
         assert_eq!(tree.len(), oracle.len());
         let query = cube(probe.point_in_world(), 60.0);
@@ -346,9 +364,8 @@ fn changes_waiting_for_the_swap_are_spread_over_steps() {
         if swapped {
             break;
         }
-        assert!(steps < 9, "not swapped in after {steps} steps");
+        assert!(frames < quiet + 20, "not swapped in after {frames} frames");
     }
-    assert!(steps >= 2, "all of the waiting changes applied in one step");
     assert!(!tree.rebuild_pending());
     let frustum = scene.frustum();
     assert_eq!(
@@ -359,4 +376,30 @@ fn changes_waiting_for_the_swap_are_spread_over_steps() {
         let want = oracle.entries().iter().find(|e| e.0 == key).unwrap().1;
         assert_eq!(tree.get(id), Ok((key, want)));
     }
+    (frames, quiet)
+}
+
+/// After a build in slices, which spans many frames, the changes made
+/// meanwhile are applied over several steps, not in one frame: a step
+/// given no more units still applies its share, and the swap comes within
+/// nine steps of the build's end.
+#[test]
+fn changes_waiting_after_a_build_in_slices_are_spread_over_steps() {
+    let (frames, quiet) = churn_across_a_rebuild(false);
+    assert!(
+        frames > quiet + 2,
+        "swapped {frames} frames in, the build alone takes {quiet}"
+    );
+    assert!(
+        frames <= quiet + 9,
+        "swapped {frames} frames in, the build alone takes {quiet}"
+    );
+}
+
+/// After work on another thread, which spans a frame or two, the changes
+/// made meanwhile are applied at the first step, and the tree swapped in.
+#[test]
+fn changes_waiting_after_work_away_are_applied_at_the_first_step() {
+    let (frames, _) = churn_across_a_rebuild(true);
+    assert_eq!(frames, 1);
 }

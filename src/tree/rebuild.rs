@@ -51,6 +51,9 @@ pub(super) struct RebuildJob<const W: usize> {
     /// Tells this rebuild's tiling apart from any other's when it comes
     /// back from another thread.
     pub(super) ticket: u64,
+    /// The tiling ran on another thread and came back: it spanned a frame
+    /// or two, so few changes wait for the catch-up.
+    pub(super) worked_away: bool,
 }
 
 impl<const W: usize> RebuildJob<W> {
@@ -188,6 +191,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             moved_early: vec![false; slots],
             phase: Self::partition_phase(0, entries),
             ticket: next_ticket(),
+            worked_away: false,
         }));
     }
 
@@ -208,8 +212,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// changes the tree made meanwhile: at least those made since the
     /// previous step and an eighth of those waiting when it was built,
     /// whatever the budget, so that it is swapped in within about eight
-    /// steps. Returns `true` when it is swapped in; `false` while work
-    /// remains or when no rebuild is under way.
+    /// steps; after work that ran on another thread
+    /// ([`RTree::take_rebuild_work`]), which spans a frame or two, all of
+    /// them at the first step. Returns `true` when it is swapped in;
+    /// `false` while work remains or when no rebuild is under way.
     pub fn step_rebuild(&mut self, budget: Duration) -> bool {
         let deadline = Instant::now() + budget;
         self.step_rebuild_until(usize::MAX, Some(deadline))
