@@ -32,10 +32,9 @@ fn answers_and_handles_hold_while_the_work_runs_on_another_thread() {
 }
 
 /// The work away again, and one unit a frame after it: the changes made
-/// while it ran are applied at the first step after it is back, however
-/// few units that step is given. (The catch-up that spans frames, during
-/// which entries already written into the new structure move again, is
-/// the builds in slices of the first test.)
+/// while it ran (two frames) are applied within two steps after it is
+/// back, however few units each step is given, while entries already
+/// written into the new structure move again.
 #[test]
 fn answers_and_handles_hold_with_one_unit_a_frame_after_the_work() {
     churn_through_rebuilds(true, 1);
@@ -289,12 +288,13 @@ fn slots_reused_during_a_rebuild_keep_their_handles_apart() {
 
 /// How a rebuild catches up with the changes made while it was built:
 /// `away`, the tiling runs at once as work taken elsewhere, with four
-/// frames of changes meanwhile; otherwise it is built in slices of four
-/// units a frame, with changes every frame. Every frame after, changes
+/// frames of changes meanwhile (and a step asked for in each of them if
+/// `steps_while_away`); otherwise it is built in slices of four units a
+/// frame, with changes every frame. Every frame after, changes
 /// again, one step given no time, `validate()` and the oracle's answers;
 /// returns the frames from the end of the work (or from the start of the
 /// slices) to the swap, and the slices' frames with nothing changing.
-fn churn_across_a_rebuild(away: bool) -> (usize, usize) {
+fn churn_across_a_rebuild(away: bool, steps_while_away: bool) -> (usize, usize) {
     let scene = TownScene::new(if away { 20_000 } else { 2_000 }, 12);
     let (mut tree, ids) = scene.bulk_loaded_tree();
     let mut oracle = BruteForce::default();
@@ -332,6 +332,9 @@ fn churn_across_a_rebuild(away: bool) -> (usize, usize) {
         let mut work = tree.take_rebuild_work().unwrap();
         for _ in 0..4 {
             churn(&mut tree, &mut oracle, 500);
+            if steps_while_away {
+                assert!(!tree.step_rebuild(Duration::ZERO));
+            }
         }
         work.run();
         assert!(tree.finish_rebuild_work(work));
@@ -385,7 +388,7 @@ fn churn_across_a_rebuild(away: bool) -> (usize, usize) {
 /// nine steps of the build's end.
 #[test]
 fn changes_waiting_after_a_build_in_slices_are_spread_over_steps() {
-    let (frames, quiet) = churn_across_a_rebuild(false);
+    let (frames, quiet) = churn_across_a_rebuild(false, false);
     assert!(
         frames > quiet + 2,
         "swapped {frames} frames in, the build alone takes {quiet}"
@@ -396,10 +399,22 @@ fn changes_waiting_after_a_build_in_slices_are_spread_over_steps() {
     );
 }
 
-/// After work on another thread, which spans a frame or two, the changes
-/// made meanwhile are applied at the first step, and the tree swapped in.
+/// After work on another thread that came back before the next step was
+/// asked for (a frame, at 60 Hz), the changes made meanwhile are applied
+/// at the first step, and the tree swapped in.
 #[test]
 fn changes_waiting_after_work_away_are_applied_at_the_first_step() {
-    let (frames, _) = churn_across_a_rebuild(true);
+    let (frames, _) = churn_across_a_rebuild(true, false);
     assert_eq!(frames, 1);
+}
+
+/// After work on another thread that spanned four steps, the changes that
+/// piled up meanwhile are spread again: over as many steps, about.
+#[test]
+fn changes_waiting_after_long_work_away_are_spread_over_steps() {
+    let (frames, _) = churn_across_a_rebuild(true, true);
+    assert!(
+        (2..=5).contains(&frames),
+        "swapped {frames} frames after the work"
+    );
 }

@@ -18,7 +18,8 @@ pub fn keep_fresh_on_a_thread(
 ) -> bool {
     if let Some(worker) = away {
         if !worker.is_finished() {
-            return false;
+            // A step while the work is away only counts the frame.
+            return tree.step_rebuild(budget);
         }
         let work = away.take().expect("checked").join().expect("the work ran");
         tree.finish_rebuild_work(work);

@@ -296,10 +296,10 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
          ahead of it by the displacement factor times the jump, and the stretch stays: \
          the queries' work grows frame after frame. The rebuild's slices cost their \
          budget on the calling thread while a rebuild runs; on another thread the \
-         calling thread pays the snapshot at the start and, at the first step after the \
-         work is back, the changes made while it ran, applied to the new structure before \
-         the swap (frames here follow each other at once, so the work spans dozens of \
-         them). \
+         calling thread pays the snapshot at the start and, once the work is back, the \
+         changes made while it ran, applied to the new structure before the swap over \
+         about as many steps as frames the work took (here a few: frames follow each \
+         other at once; at 60 Hz one). \
          A rebuilt tree fills its leaves to 14 of 16 entries, so that the teleports after \
          it land in the room instead of splitting leaves (rebuilt with nothing moving, \
          a tree visits 3 % more nodes than a fresh load packed full, and its self join \

@@ -142,7 +142,9 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
     #[cfg(feature = "parallel")]
     if let Some(task) = &mut away.task {
         if !task.is_finished() {
-            return false;
+            // The step only counts the frame: the catch-up after the work
+            // spreads what changed over about as many steps.
+            return tree.step_rebuild(Duration::ZERO);
         }
         let work = bevy_tasks::block_on(away.task.take().unwrap());
         // Refused only if the rebuild was cancelled meanwhile; a worn

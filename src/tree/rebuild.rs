@@ -51,9 +51,11 @@ pub(super) struct RebuildJob<const W: usize> {
     /// Tells this rebuild's tiling apart from any other's when it comes
     /// back from another thread.
     pub(super) ticket: u64,
-    /// The tiling ran on another thread and came back: it spanned a frame
-    /// or two, so few changes wait for the catch-up.
+    /// The tiling ran on another thread and came back.
     pub(super) worked_away: bool,
+    /// Steps asked for while the work was away: about the frames it took,
+    /// over which the changes waiting for the catch-up piled up.
+    pub(super) steps_away: usize,
 }
 
 impl<const W: usize> RebuildJob<W> {
@@ -192,6 +194,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             phase: Self::partition_phase(0, entries),
             ticket: next_ticket(),
             worked_away: false,
+            steps_away: 0,
         }));
     }
 
@@ -213,8 +216,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// previous step and an eighth of those waiting when it was built,
     /// whatever the budget, so that it is swapped in within about eight
     /// steps; after work that ran on another thread
-    /// ([`RTree::take_rebuild_work`]), which spans a frame or two, all of
-    /// them at the first step. Returns `true` when it is swapped in;
+    /// ([`RTree::take_rebuild_work`]), within as many steps as were asked
+    /// for while it was away (at most eight): at the first step after work
+    /// that took a frame. Returns `true` when it is swapped in;
     /// `false` while work remains or when no rebuild is under way.
     pub fn step_rebuild(&mut self, budget: Duration) -> bool {
         let deadline = Instant::now() + budget;
@@ -306,6 +310,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         // out; a finished build catches up and is swapped in.
         if matches!(job.phase, Phase::Away) {
             // The tiling runs elsewhere; nothing to do here until it is back.
+            job.steps_away += 1;
             self.rebuild_job = Some(job);
             return false;
         }

@@ -86,8 +86,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// rebuild is under way or it is already past its first cut (the work
     /// then goes on in [`RTree::step_rebuild`]). Until the work comes back
     /// ([`RTree::finish_rebuild_work`]) the tree answers and changes as
-    /// usual, marking each entry that changes, and `step_rebuild` does
-    /// nothing; work that never comes back (dropped, or taken from a tree
+    /// usual, marking each entry that changes, and `step_rebuild` only
+    /// counts the calls: keep calling it once a frame, and the changes
+    /// that piled up are applied over about as many steps after the work
+    /// is back (at most eight; at the first step after work that took a
+    /// frame). Work that never comes back (dropped, or taken from a tree
     /// that was cloned since) leaves the rebuild waiting until
     /// [`RTree::cancel_rebuild`].
     pub fn take_rebuild_work(&mut self) -> Option<RebuildWork<K, W>> {
@@ -120,6 +123,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             phase: std::mem::replace(&mut job.phase, Phase::Away),
             ticket: job.ticket,
             worked_away: false,
+            steps_away: 0,
         };
         Some(RebuildWork {
             job: Box::new(away),

@@ -6,8 +6,9 @@
 //! A step applies at least what was marked since the previous step plus
 //! a share of what was waiting when the build finished, so the waiting
 //! list shrinks every step and the swap comes within a bounded number of
-//! steps: one after a tiling that ran on another thread, eight after one
-//! built in slices on the calling thread (see `CATCH_UP_STEPS`).
+//! steps: eight after a tiling built in slices on the calling thread (see
+//! `CATCH_UP_STEPS`), and after one that ran on another thread as many as
+//! the frames it took, at most eight (one at 60 Hz).
 //!
 //! Applying a change to the new structure uses the tree's own moves,
 //! inserts and removals: the new structure is exchanged with the current
@@ -33,23 +34,30 @@ use crate::geometry::Aabb;
 /// against 10–15 ms spread over eight steps, for no better tree.
 const CATCH_UP_STEPS: usize = 8;
 
-/// The same after a tiling that ran on another thread: one step, the swap
-/// at the first step after the work comes back.
+/// After a tiling that ran on another thread: as many steps as steps
+/// were asked for while it was away (about the frames it took, over which
+/// the waiting changes piled up), at least one and at most
+/// [`CATCH_UP_STEPS`], so that a step applies about one frame's worth of
+/// them besides its own frame's.
 ///
-/// The work spans a frame or two, so the changes that wait are few, except
-/// where every entry moves every frame; the inserts among them land in
-/// the room rebuilt leaves keep (`RTree::REBUILD_LEAF_FILL`) instead of
-/// splitting them. Spread over eight steps, each of them applied that
-/// frame's changes to both structures and the tree swapped in was eight
-/// frames behind. The decay bench at 60 Hz, 1,000 frames, the work on
-/// another thread, eight steps → one: nodes visited ÷ fresh over the last
-/// 200 frames, crowd 1.40 → 1.21, teleports 1.22 → 1.15, respawn 1.18 →
+/// At 60 Hz the work on 100,000 entries spans a frame, so the swap comes
+/// at the first step after it is back; the inserts among the waiting
+/// changes land in the room rebuilt leaves keep
+/// (`RTree::REBUILD_LEAF_FILL`) instead of splitting them. Spread over
+/// eight steps instead, each applied that frame's changes to both
+/// structures and the tree swapped in was eight frames behind. The decay
+/// bench at 60 Hz, 1,000 frames, the work on another thread, eight steps
+/// → one: nodes visited ÷ fresh over the last 200 frames, crowd 1.40 → 1.21, teleports 1.22 → 1.15, respawn 1.18 →
 /// 1.11, bullets 1.18 → 1.14, steps 1.07 → 1.09; maintenance a frame,
 /// crowd 10.9 → 5.9 ms, bullets 8.2 → 5.3, respawn 2.3 → 1.7, teleports
 /// 3.7 → 3.1, steps 1.27 → 1.17; the worst frame 30 → 23, 15 → 13, 5.9 →
 /// 7.2, 7.9 → 9.0, 4.6 → 4.8 ms. Two steps gave the crowd the same tree
-/// as one.
-const CATCH_UP_STEPS_AFTER_WORK_AWAY: usize = 1;
+/// as one. Work that spans many frames (a larger tree, a faster frame
+/// rate, frames back to back) piles up as many frames of changes, and
+/// those are spread again.
+fn catch_up_steps_after_work_away(steps_away: usize) -> usize {
+    steps_away.clamp(1, CATCH_UP_STEPS)
+}
 
 /// Changes applied between two looks at the clock.
 const CHUNK: usize = 32;
@@ -128,7 +136,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         job.leaf_bounds = Vec::new();
         let waiting = job.marked.len();
         let steps = if job.worked_away {
-            CATCH_UP_STEPS_AFTER_WORK_AWAY
+            catch_up_steps_after_work_away(job.steps_away)
         } else {
             CATCH_UP_STEPS
         };
