@@ -11,9 +11,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// entries by median cuts on their widest axis.
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
-    /// handles stay valid. Leaves are packed full; their parents keep room
-    /// for more leaves (14 of 16 at the default width) where that adds no
-    /// level, for the splits the first frames of movement bring.
+    /// handles stay valid. Into an empty tree, leaves are packed full; into
+    /// one that holds entries, this is a rebuild, and leaves keep room for
+    /// two more entries as [`RTree::rebuild`] leaves them. Parents keep
+    /// room for more leaves (14 of 16 at the default width) where that adds
+    /// no level, for the splits the first frames of movement bring.
     ///
     /// All boxes are checked first: if any is invalid, nothing is inserted
     /// and the error is returned.
