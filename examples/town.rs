@@ -6,7 +6,8 @@
 //!
 //! Run with `cargo run --release --example town` (`-- --frames N`,
 //! `-- --count N` for a smaller scene, `-- --rebuild-us N` to rebuild worn
-//! trees in slices of N µs a frame where there is no task pool, 0 never;
+//! trees in slices of N µs a frame where there is no task pool (by default
+//! only on the task pool, which the feature `parallel` brings), 0 never;
 //! `-- --frame-us N` to give each frame N µs, the rest after the update
 //! spent waiting as a game's other work would; with the features
 //! `parallel,multi_threaded`, `-- --threads N` sets the task pool's size).

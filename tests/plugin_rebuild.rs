@@ -108,13 +108,22 @@ fn rebuilds_in_slices_keep_the_answers_exact() {
     assert!(rebuilds >= 2, "{rebuilds} rebuilds in 120 frames");
 }
 
-/// Off, the default: nothing is rebuilt.
+/// Off: nothing is rebuilt.
 #[test]
 fn rebuild_off_rebuilds_nothing() {
-    assert_eq!(SpatialIndexPlugin::default().rebuild, RebuildMode::Off);
+    let plugin = SpatialIndexPlugin {
+        rebuild: RebuildMode::Off,
+        ..SpatialIndexPlugin::default()
+    };
+    assert_eq!(teleporting_scene(plugin, 4_000, 40), 0);
+}
+
+/// The default rebuilds on the task pool where the app has one.
+#[test]
+fn the_default_rebuilds_on_the_task_pool() {
     assert_eq!(
-        teleporting_scene(SpatialIndexPlugin::default(), 4_000, 40),
-        0
+        SpatialIndexPlugin::default().rebuild,
+        RebuildMode::OnTaskPool
     );
 }
 

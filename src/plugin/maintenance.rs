@@ -24,18 +24,21 @@ use crate::tree::RTree;
 /// after 2,000 frames; with teleports, 74 %); a rebuild from the live
 /// entries brings most of it back, and answers and handles never change.
 ///
-/// Off by default, because on the standard scene it does not pay for
-/// itself: the snapshot at the start and the changes applied to the new
-/// structure before the swap run on the thread that runs the plugin.
-/// Through the plugin (`town` example at 60 Hz, 1,200 frames) the mean
-/// frame's index and queries grew by 5–12 % with the work on the task
-/// pool, and in slices on the main thread by 40 % (3,000 frames back to
-/// back). In a scene of 100,000 entities (`cargo bench --bench decay`,
-/// 2,000 frames at 60 Hz, the work on another thread) every motion
-/// pattern then stays within 1.25 × a fresh tree's nodes visited, against
-/// up to 1.74 × without; the worst frame's maintenance is a few
-/// milliseconds more (steady movers 4.0 → 4.9 ms). Turn it on where
-/// steadier query times in a long session are worth that.
+/// On Bevy's async task pool by default, where the app has one (feature
+/// `parallel`; `DefaultPlugins` and `MinimalPlugins` add the pools), and
+/// off where it has none: the work runs there, and the thread that runs
+/// the plugin pays the snapshot at the start and the changes made
+/// meanwhile, applied to the new structure before the swap. Through the
+/// plugin (`town` example at 60 Hz, 1,200 frames, three runs each) the
+/// mean frame's index and queries took 1.91, 1.91, 1.89 ms with it
+/// against 1.99, 1.95, 1.90 ms without: the fresher tree repays its
+/// upkeep. In a scene of 100,000 entities (`cargo bench --bench decay`,
+/// 2,000 frames at 60 Hz) every motion pattern then stays within 1.25 ×
+/// a fresh tree's nodes visited, against up to 1.74 × without; the worst
+/// frame's maintenance is a millisecond or so more (steady movers 4.0 →
+/// 4.9 ms). In slices on the main thread instead, a rebuild cost the
+/// frame 40 % more (3,000 frames back to back): turn slices on only
+/// where there is no pool and long sessions matter more than that.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -50,12 +53,13 @@ use crate::tree::RTree;
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum RebuildMode {
-    /// Never: repair alone. The default.
-    #[default]
+    /// Never: repair alone.
     Off,
     /// On Bevy's `AsyncComputeTaskPool` where the app has one (feature
     /// `parallel`; `DefaultPlugins` and `MinimalPlugins` add the pools),
-    /// costing the frame only the snapshot and the swap; off otherwise.
+    /// costing the frame only the snapshot and the catch-up; off
+    /// otherwise. The default.
+    #[default]
     OnTaskPool,
     /// On the task pool where there is one, otherwise in slices of this
     /// much time a layer a frame on the thread that runs the plugin.

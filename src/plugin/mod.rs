@@ -136,8 +136,9 @@ pub struct SpatialIndexPlugin {
     pub optimize_budget: usize,
     /// Whether and how each layer's tree is rebuilt when the changes since
     /// its last rebuild reach a quarter of its entries, so that it stays
-    /// near the speed of a fresh one in long sessions: off by default (the
-    /// swap costs the frame it lands in milliseconds); see [`RebuildMode`].
+    /// near the speed of a fresh one in long sessions: on Bevy's async
+    /// task pool by default where the app has one, off where it has none;
+    /// see [`RebuildMode`].
     pub rebuild: RebuildMode,
 }
 
