@@ -51,11 +51,10 @@ pub(super) struct RebuildJob<const W: usize> {
     /// Tells this rebuild's tiling apart from any other's when it comes
     /// back from another thread.
     pub(super) ticket: u64,
-    /// The tiling ran on another thread and came back.
-    pub(super) worked_away: bool,
-    /// Steps asked for while the work was away: about the frames it took,
-    /// over which the changes waiting for the catch-up piled up.
-    pub(super) steps_away: usize,
+    /// Once the tiling was taken to run on another thread: the steps asked
+    /// for while it was away, about the frames it took, over which the
+    /// changes waiting for the catch-up piled up (`None`: built here).
+    pub(super) steps_away: Option<usize>,
 }
 
 impl<const W: usize> RebuildJob<W> {
@@ -193,8 +192,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             moved_early: vec![false; slots],
             phase: Self::partition_phase(0, entries),
             ticket: next_ticket(),
-            worked_away: false,
-            steps_away: 0,
+            steps_away: None,
         }));
     }
 
@@ -310,7 +308,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         // out; a finished build catches up and is swapped in.
         if matches!(job.phase, Phase::Away) {
             // The tiling runs elsewhere; nothing to do here until it is back.
-            job.steps_away += 1;
+            *job.steps_away.get_or_insert(0) += 1;
             self.rebuild_job = Some(job);
             return false;
         }

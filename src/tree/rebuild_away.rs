@@ -122,9 +122,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             moved_early: Vec::new(),
             phase: std::mem::replace(&mut job.phase, Phase::Away),
             ticket: job.ticket,
-            worked_away: false,
-            steps_away: 0,
+            steps_away: None,
         };
+        job.steps_away = Some(0);
         Some(RebuildWork {
             job: Box::new(away),
             keys: PhantomData,
@@ -151,7 +151,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         job.placed = back.placed;
         job.leaf_bounds = back.leaf_bounds;
         job.phase = back.phase;
-        job.worked_away = true;
         job.is_marked.iter_mut().for_each(|m| *m = false);
         for slot in marked_away.into_iter().chain(marked_there) {
             job.mark(slot);

@@ -135,10 +135,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         job.placed = Vec::new();
         job.leaf_bounds = Vec::new();
         let waiting = job.marked.len();
-        let steps = if job.worked_away {
-            catch_up_steps_after_work_away(job.steps_away)
-        } else {
-            CATCH_UP_STEPS
+        let steps = match job.steps_away {
+            Some(steps_away) => catch_up_steps_after_work_away(steps_away),
+            None => CATCH_UP_STEPS,
         };
         Phase::CatchUp(CatchUp {
             structure: Box::new(Structure {
