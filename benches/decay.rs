@@ -456,7 +456,7 @@ fn run(
         if frames - frame <= SAMPLED_FRAMES && (frames - frame).is_multiple_of(SAMPLE_EVERY) {
             let fresh = world.fresh();
             let maintained = [&world.all, &world.enemies, &world.barrels];
-            let counts = nodes_visited(&queries, [maintained, [&fresh[0], &fresh[1], &fresh[2]]]);
+            let counts = nodes_visited(&queries, [maintained, fresh.each_ref()]);
             sampled[0] += counts[0];
             sampled[1] += counts[1];
         }
@@ -513,19 +513,12 @@ fn compare(
 ) -> (Vec<f64>, f64) {
     let mut ws = QueryWorkspace::default();
     let mut cells = Vec::new();
-    let mut visited = [0u64; 2];
     for (f, family) in FAMILIES.iter().enumerate() {
         let (mut kept, mut new) = (Vec::new(), Vec::new());
         for rep in 0..7 {
             let mut run = |which: usize| {
                 let set = if which == 0 { trees } else { fresh };
-                let set = [&set[0], &set[1], &set[2]];
-                ws.take_stats();
-                let out = queries.run(f, set, &mut ws);
-                if rep == 0 {
-                    visited[which] += ws.stats().nodes_visited;
-                }
-                out
+                queries.run(f, set.each_ref(), &mut ws)
             };
             let (m, n) = if rep % 2 == 0 {
                 let m = run(0);
@@ -540,6 +533,7 @@ fn compare(
         }
         cells.push(median(&mut kept) / median(&mut new));
     }
+    let visited = nodes_visited(queries, [trees.each_ref(), fresh.each_ref()]);
     (cells, visited[0] as f64 / visited[1].max(1) as f64)
 }
 
