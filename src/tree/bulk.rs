@@ -1,6 +1,8 @@
-//! Bulk loading: entries are tiled into compact groups by median cuts on
-//! their widest axis, and packed bottom-up into nearly full nodes.
+//! Bulk loading: entries are tiled into compact groups by median cuts, each
+//! along the axis that leaves its two sides the least surface, and packed
+//! bottom-up into nearly full nodes.
 
+use super::cut_axis::cut_axis;
 use super::node::NIL;
 use super::{Entry, RTree};
 use crate::geometry::{Aabb, SpatialError};
@@ -8,7 +10,7 @@ use crate::tree::ProxyId;
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Inserts many entries at once and rebuilds the whole tree, grouping
-    /// entries by median cuts on their widest axis.
+    /// entries by median cuts.
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
     /// handles stay valid. Into an empty tree, leaves are packed full; into
@@ -273,14 +275,15 @@ pub(super) fn group_range(n: usize, groups: usize, g: usize) -> std::ops::Range<
 /// Orders `entries` so that `group_range(len, groups, g)` is a spatially
 /// compact tile for every `g`.
 ///
-/// The entries are cut in two at a median, along the axis on which their
-/// centres spread widest, with as many groups on each side as the two
-/// halves hold; each half is cut again until every group stands alone (a
-/// k-d tiling). Cutting the widest axis adapts the tiles to the data: on a
-/// world 20 times wider than tall, fixed slab counts per axis (sort-tile-
-/// recursive) cut thin slices in height, whereas this cuts height only
-/// where boxes are stacked. On the standard scene it halves the nodes a
-/// ray or a join visits (see `docs/performance.md`).
+/// The entries are cut in two at a median by centre, along the axis that
+/// leaves the two sides the least surface ([`cut_axis`]), with as many
+/// groups on each side as the two halves hold; each half is cut again
+/// until every group stands alone (a k-d tiling). Choosing the axis per cut
+/// adapts the tiles to the data: on a world 20 times wider than tall, fixed
+/// slab counts per axis (sort-tile-recursive) cut thin slices in height,
+/// whereas this cuts height only where boxes are stacked. On the standard
+/// scene it halves the nodes a ray or a join visits (see
+/// `docs/performance.md`).
 pub(super) fn tile_partition(entries: &mut [Entry], groups: usize) {
     let n = entries.len();
     halve(entries, 0, groups, n, groups);
@@ -298,10 +301,10 @@ fn halve(
     if count <= 1 {
         return;
     }
-    let axis = widest_centre_axis(entries);
     let left = count / 2;
     let start = group_range(total_entries, total_groups, first).start;
     let cut = group_range(total_entries, total_groups, first + left).start - start;
+    let axis = cut_axis(entries, cut);
     entries.select_nth_unstable_by(cut, |a, b| {
         centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis))
     });
@@ -314,25 +317,6 @@ fn halve(
         total_entries,
         total_groups,
     );
-}
-
-/// The axis along which the entries' centres spread widest (ties go to the
-/// lower axis).
-pub(super) fn widest_centre_axis(entries: &[Entry]) -> usize {
-    let (mut lo, mut hi) = (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY);
-    for entry in entries {
-        let centre = entry.bound.min + entry.bound.max;
-        lo = lo.min(centre);
-        hi = hi.max(centre);
-    }
-    let spread = hi - lo;
-    if spread.x >= spread.y && spread.x >= spread.z {
-        0
-    } else if spread.y >= spread.z {
-        1
-    } else {
-        2
-    }
 }
 
 /// Twice the centre along `axis` (halving would not change the order).

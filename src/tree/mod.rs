@@ -7,7 +7,8 @@
 //!   a time) and R*-style splits;
 //! - `remove`: removal with condensing and reinsertion of orphans;
 //! - `update`: moves, absorbed by enlarged bounds when small;
-//! - `bulk`: bulk loading (median cuts on the widest axis) and rebuilds;
+//! - `bulk`: bulk loading (median cuts) and rebuilds;
+//! - `cut_axis`: which axis each median cut of a tiling takes;
 //! - `optimize`: local repacking of churned subtrees;
 //! - `prefetch`: cache hints for box queries, batched moves and repacks
 //!   (the crate's only `unsafe`);
@@ -15,6 +16,7 @@
 
 mod bulk;
 mod choose;
+mod cut_axis;
 mod handle;
 mod insert;
 pub(crate) mod node;

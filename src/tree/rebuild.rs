@@ -18,7 +18,8 @@
 
 use std::time::{Duration, Instant};
 
-use super::bulk::{centre_key, group_range, widest_centre_axis};
+use super::bulk::{centre_key, group_range};
+use super::cut_axis::cut_axis;
 use super::handle::Stamp;
 use super::node::{NIL, Node};
 use super::rebuild_away::next_ticket;
@@ -112,9 +113,9 @@ pub(super) fn cut_once(
     {
         let n = entries.len();
         let slice = &mut entries[start..end];
-        let axis = widest_centre_axis(slice);
         let left = count / 2;
         let cut = group_range(n, groups, first + left).start - start;
+        let axis = cut_axis(slice, cut);
         slice.select_nth_unstable_by(cut, |a, b| {
             centre_key(&a.bound, axis).total_cmp(&centre_key(&b.bound, axis))
         });
