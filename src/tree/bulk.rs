@@ -48,21 +48,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return Ok(self.load_fresh(entries));
         }
         let mut ids = Vec::with_capacity(entries.len());
-        let mut exact: Vec<Aabb> = self.collect_exact_boxes();
+        let mut level_entries = self.live_entries_in_leaf_order();
         for (key, aabb) in entries {
             let fat = self.settings.fatten(&aabb, glam::Vec3::ZERO);
             let proxy = self.alloc_proxy(key, fat);
-            if exact.len() <= proxy as usize {
-                exact.resize(proxy as usize + 1, Aabb::INVERTED);
-            }
-            exact[proxy as usize] = aabb;
-            // Mark live now so the rebuild below picks it up.
+            // Marked live now, for the checks of the packing below.
             self.proxies[proxy as usize].leaf = 0;
             ids.push(self.handle(proxy));
             self.len += 1;
             self.note_change(proxy, None);
+            level_entries.push(Entry {
+                lane_box: aabb,
+                bound: fat,
+                child: proxy,
+            });
         }
-        self.rebuild_from(&exact);
+        self.pack_rebuilt(level_entries);
         Ok(ids)
     }
 
@@ -116,43 +117,42 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub fn rebuild(&mut self) {
         // A rebuild under way would only redo this.
         self.rebuild_job = None;
-        let exact = self.collect_exact_boxes();
-        self.rebuild_from(&exact);
+        let entries = self.live_entries_in_leaf_order();
+        self.pack_rebuilt(entries);
     }
 
-    /// Exact box per proxy index (inverted for free slots).
-    fn collect_exact_boxes(&self) -> Vec<Aabb> {
-        self.proxies
-            .iter()
-            .map(|p| {
-                if p.is_live() {
-                    self.nodes[p.leaf as usize].lane_box(p.lane as usize)
-                } else {
-                    Aabb::INVERTED
-                }
-            })
-            .collect()
-    }
-
-    /// Packs every live proxy (exact boxes from `exact`) into a new tree,
-    /// with fresh enlarged boxes.
-    fn rebuild_from(&mut self, exact: &[Aabb]) {
+    /// Every entry, with its exact box and a fresh enlarged box (without
+    /// the stretch of past moves), read leaf by leaf in the order of the
+    /// node pool: a sequential scan, where reading slot by slot would jump
+    /// through memory once per entry. A rebuild at once and one in steps
+    /// both start from it, so that they tile alike (the tiling's cuts judge
+    /// long ranges from a sample that depends on the entries' order).
+    pub(super) fn live_entries_in_leaf_order(&self) -> Vec<Entry> {
         let settings = self.settings;
-        let level_entries: Vec<Entry> = self
-            .proxies
-            .iter_mut()
-            .enumerate()
-            .filter(|(_, p)| p.is_live())
-            .map(|(i, p)| {
-                p.fat = settings.fatten(&exact[i], glam::Vec3::ZERO);
-                Entry {
-                    lane_box: exact[i],
-                    bound: p.fat,
-                    child: i as u32,
-                }
-            })
-            .collect();
-        self.pack(level_entries, Self::REBUILD_LEAF_FILL, false);
+        let mut entries = Vec::with_capacity(self.len);
+        for node in &self.nodes {
+            if !node.is_leaf() || node.level != 0 {
+                continue;
+            }
+            for lane in 0..node.len() {
+                let exact = node.lane_box(lane);
+                entries.push(Entry {
+                    lane_box: exact,
+                    bound: settings.fatten(&exact, glam::Vec3::ZERO),
+                    child: node.child[lane],
+                });
+            }
+        }
+        entries
+    }
+
+    /// Packs `entries` (`child` their proxy, `bound` their new enlarged
+    /// box) into a new structure with the room of a rebuild.
+    fn pack_rebuilt(&mut self, entries: Vec<Entry>) {
+        for entry in &entries {
+            self.proxies[entry.child as usize].fat = entry.bound;
+        }
+        self.pack(entries, Self::REBUILD_LEAF_FILL, false);
     }
 
     /// Packs entries (`child` their proxy, fresh enlarged boxes) into a

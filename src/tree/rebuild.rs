@@ -164,24 +164,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if self.rebuild_job.is_some() {
             return;
         }
-        // The snapshot, read leaf by leaf in the order of the node pool (a
-        // sequential scan, where reading slot by slot would jump through
-        // memory once per entry), with fresh enlarged boxes.
-        let settings = self.settings;
-        let mut entries: Vec<Entry> = Vec::with_capacity(self.len);
-        for node in &self.nodes {
-            if !node.is_leaf() || node.level != 0 {
-                continue;
-            }
-            for lane in 0..node.len() {
-                let exact = node.lane_box(lane);
-                entries.push(Entry {
-                    lane_box: exact,
-                    bound: settings.fatten(&exact, glam::Vec3::ZERO),
-                    child: node.child[lane],
-                });
-            }
-        }
+        let entries = self.live_entries_in_leaf_order();
         let slots = self.proxies.len();
         self.rebuild_job = Some(Box::new(RebuildJob {
             nodes: Vec::new(),
