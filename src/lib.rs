@@ -146,10 +146,11 @@
 //! The node split ([`TreeSettings::split`]) trades insert time against the
 //! tree's shape. Measured on the standard scene at width 16
 //! (`cargo bench --bench tree -- split/`; `docs/performance.md`):
-//! 100,000 single inserts take 66 / 65 / 43 ms with
+//! 100,000 single inserts take 52 / 52 / 39 ms with
 //! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
-//! moves 0.39 / 0.41 / 0.39 ms, and 1,000 box queries on the churned tree
-//! 0.22 / 0.25 / 0.24 ms (a bulk-loaded tree of the same boxes: 0.16 ms).
+//! moves 0.41 / 0.43 / 0.43 ms, and 1,000 box queries on the churned tree
+//! 0.139 / 0.164 / 0.146 ms (a bulk-loaded tree of the same boxes: 0.115
+//! ms).
 //! The R* split is the default: queries run every frame, and it leaves the
 //! best tree.
 //!
