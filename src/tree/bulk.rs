@@ -52,7 +52,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         for (key, aabb) in entries {
             let fat = self.settings.fatten(&aabb, glam::Vec3::ZERO);
             let proxy = self.alloc_proxy(key, fat);
-            // Marked live now, for the checks of the packing below.
+            // Live from here on; the packing below gives it its leaf.
             self.proxies[proxy as usize].leaf = 0;
             ids.push(self.handle(proxy));
             self.len += 1;
