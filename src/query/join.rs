@@ -1,5 +1,6 @@
 //! Distance joins: every pair of entries within a distance, of one tree with
-//! itself or of two trees.
+//! itself or of two trees (the cross join's own steps are in
+//! `cross_join.rs`).
 //!
 //! The traversal descends pairs of nodes in lock step: for two nodes it tests
 //! every pair of their children and recurses only into the pairs that can
@@ -59,7 +60,7 @@ impl JoinMode {
 /// 2.68–2.71 ms in a probe, alternating builds, the same pairs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct JoinTest {
-    reach: f32,
+    pub(super) reach: f32,
     exact: f64,
     mode: JoinMode,
 }
@@ -119,7 +120,7 @@ fn reach_of(distance: f32) -> f32 {
 /// (`next_down` / `next_up`) cost a quarter of a self join, and still
 /// missed pairs near zero (see `reach_of`).
 #[inline(always)]
-fn grow(aabb: &Aabb, by: f32) -> Aabb {
+pub(super) fn grow(aabb: &Aabb, by: f32) -> Aabb {
     let d = Vec3::splat(by);
     Aabb {
         min: aabb.min - d,
@@ -179,7 +180,7 @@ impl JoinItem {
 
 /// The intersection of two boxes (inverted when they are apart).
 #[inline(always)]
-fn meet(a: &Aabb, b: &Aabb) -> Aabb {
+pub(super) fn meet(a: &Aabb, b: &Aabb) -> Aabb {
     Aabb {
         min: a.min.max(b.min),
         max: a.max.min(b.max),
@@ -201,31 +202,9 @@ pub(crate) fn four_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, lane
     node.overlap_mask_among(query, lanes)
 }
 
-/// The children of `node` whose bound overlaps `region`, each with the
-/// region cut down to its bound grown by `reach`: the items of a node that
-/// descends alone against a shorter partner.
-#[inline(always)]
-fn children_in_region<'a, const W: usize>(
-    node: &'a Node<W>,
-    region: &'a Aabb,
-    reach: f32,
-    masks: impl LaneMasks<W> + 'a,
-) -> impl Iterator<Item = (u32, Aabb)> + 'a {
-    let mut mask = masks(node, region, node.used_lanes());
-    std::iter::from_fn(move || {
-        if mask == 0 {
-            return None;
-        }
-        let lane = mask.trailing_zeros() as usize;
-        mask &= mask - 1;
-        let cut = meet(region, &grow(&node.lane_box(lane), reach));
-        Some((node.child[lane], cut))
-    })
-}
-
 /// Which two nodes a step of a join pairs, for the choices that differ.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum NodePair {
+pub(super) enum NodePair {
     /// A node with itself (self join): each unordered lane pair once, and
     /// every child of an internal node also paired with itself.
     Same,
@@ -242,7 +221,7 @@ enum NodePair {
 /// `emit(i, j)`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn join_lane_pairs<const W: usize>(
+pub(super) fn join_lane_pairs<const W: usize>(
     na: &Node<W>,
     nb: &Node<W>,
     pair: NodePair,
@@ -524,150 +503,6 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<(K, K)>,
     ) -> Result<(), SpatialError> {
         self.visit_self_join(distance, mode, ws, |a, b| {
-            out.push((a, b));
-            ControlFlow::Continue(())
-        })
-    }
-
-    /// Calls `visit(a, b)` once for every pair of an entry `a` of this tree
-    /// and an entry `b` of `other` within `distance`, with `a != b` by key,
-    /// until `visit` breaks. The two trees may have different shapes and
-    /// widths of the same `W`.
-    pub fn visit_cross_join<F>(
-        &self,
-        other: &RTree<K, W>,
-        distance: f32,
-        mode: JoinMode,
-        ws: &mut QueryWorkspace,
-        mut visit: F,
-    ) -> Result<(), SpatialError>
-    where
-        F: FnMut(K, K) -> ControlFlow<()>,
-    {
-        let test = JoinTest::new(distance, mode)?;
-        if self.is_empty() || other.is_empty() {
-            return Ok(());
-        }
-        ws.join_stack.clear();
-        ws.join_stack
-            .push(JoinItem::roots(self.root(), other.root()));
-        let _ = self.drain_cross_join(other, test, ws, &mut visit);
-        Ok(())
-    }
-
-    /// Runs the cross join with `other` from the node pairs on
-    /// `ws.join_stack`, as [`RTree::drain_self_join`].
-    pub(crate) fn drain_cross_join(
-        &self,
-        other: &RTree<K, W>,
-        test: JoinTest,
-        ws: &mut QueryWorkspace,
-        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
-    ) -> ControlFlow<()> {
-        #[cfg(target_arch = "x86_64")]
-        if super::join_avx512::avx512_tests_nodes::<W>() {
-            // SAFETY: as in `drain_self_join`.
-            #[allow(unsafe_code)]
-            return unsafe { self.drain_cross_join_avx512(other, test, ws, visit) };
-        }
-        self.drain_cross_join_with(other, test, ws, visit, four_lane_masks::<W>)
-    }
-
-    /// [`RTree::drain_cross_join`] on the lane test `masks`.
-    #[inline(always)]
-    pub(super) fn drain_cross_join_with(
-        &self,
-        other: &RTree<K, W>,
-        test: JoinTest,
-        ws: &mut QueryWorkspace,
-        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
-        masks: impl LaneMasks<W>,
-    ) -> ControlFlow<()> {
-        while let Some(item) = ws.join_stack.pop() {
-            self.cross_join_step(other, item, test, ws, masks, visit)?;
-        }
-        ControlFlow::Continue(())
-    }
-
-    /// One pair of nodes of a cross join: the taller side descends alone
-    /// until the levels meet; then as [`RTree::self_join_step`].
-    #[inline(always)]
-    pub(crate) fn cross_join_step(
-        &self,
-        other: &RTree<K, W>,
-        item: JoinItem,
-        test: JoinTest,
-        ws: &mut QueryWorkspace,
-        masks: impl LaneMasks<W>,
-        visit: &mut impl FnMut(K, K) -> ControlFlow<()>,
-    ) -> ControlFlow<()> {
-        ws.stats.nodes_visited += 1;
-        let JoinItem { a, b, region } = item;
-        let (na, nb) = (self.node(a), other.node(b));
-        // The taller side descends alone, paired with the other node as is.
-        if na.level != nb.level {
-            let a_descends = na.level > nb.level;
-            let taller = if a_descends { na } else { nb };
-            for (child, region) in children_in_region(taller, &region, test.reach, masks) {
-                let (a, b) = if a_descends { (child, b) } else { (a, child) };
-                ws.join_stack.push(JoinItem { a, b, region });
-            }
-            return ControlFlow::Continue(());
-        }
-        let base = ws.join_stack.len();
-        let flow = join_lane_pairs(
-            na,
-            nb,
-            NodePair::TwoTrees,
-            &region,
-            test,
-            ws,
-            masks,
-            |i, j| {
-                let (ka, kb) = (self.key_of(na.child[i]), other.key_of(nb.child[j]));
-                if ka == kb {
-                    return ControlFlow::Continue(());
-                }
-                visit(ka, kb)
-            },
-        );
-        // As in the self join: the pushed pairs' nodes start loading now.
-        for pushed in &ws.join_stack[base.min(ws.join_stack.len())..] {
-            self.prefetch_node(pushed.a);
-            other.prefetch_node(pushed.b);
-        }
-        flow
-    }
-
-    /// All pairs of [`RTree::visit_cross_join`], sorted.
-    pub fn cross_join(
-        &self,
-        other: &RTree<K, W>,
-        distance: f32,
-        mode: JoinMode,
-    ) -> Result<Vec<(K, K)>, SpatialError> {
-        let mut out = Vec::new();
-        self.cross_join_into(
-            other,
-            distance,
-            mode,
-            &mut QueryWorkspace::default(),
-            &mut out,
-        )?;
-        out.sort_unstable();
-        Ok(out)
-    }
-
-    /// Appends the pairs of [`RTree::visit_cross_join`] to `out`, unordered.
-    pub fn cross_join_into(
-        &self,
-        other: &RTree<K, W>,
-        distance: f32,
-        mode: JoinMode,
-        ws: &mut QueryWorkspace,
-        out: &mut Vec<(K, K)>,
-    ) -> Result<(), SpatialError> {
-        self.visit_cross_join(other, distance, mode, ws, |a, b| {
             out.push((a, b));
             ControlFlow::Continue(())
         })

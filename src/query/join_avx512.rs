@@ -19,7 +19,7 @@
 //! Calling a function compiled for AVX-512 is `unsafe`: on a processor
 //! without it, it would execute instructions the processor lacks. The
 //! crate's calls are in `RTree::drain_self_join` and
-//! `RTree::drain_cross_join` (`join.rs`), made only after
+//! `RTree::drain_cross_join` (`join.rs`, `cross_join.rs`), made only after
 //! [`avx512_tests_nodes`] (the standard library's run-time check) has found
 //! AVX-512; this file's unit test makes another the same way.
 //!

@@ -6,6 +6,7 @@
 //! Traversal state lives in a reusable [`QueryWorkspace`], so queries run
 //! every frame do not allocate.
 
+mod cross_join;
 mod frustum;
 mod frustum_levels;
 mod frustum_proof;
