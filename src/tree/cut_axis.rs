@@ -14,9 +14,10 @@
 //! cull and the rays stay within the noise (a coherent batch from one
 //! viewpoint moved by up to a fifth either way between variants of the
 //! rule, while the mean over 39 other viewpoints did not move). It costs
-//! a bulk load of 100,000 entries about 4.5 ms (12 → 16.5 ms) and the
-//! repair about 0.035 ms a frame (see `docs/performance.md`, "Cuts along
-//! the axis of least surface").
+//! a bulk load of 100,000 entries about 4.4 ms (12.0 → 16.4 ms) and the
+//! repair about 0.035 ms a frame (see `docs/performance.md`, "The self
+//! join: one region test for two leaves, and cuts along the axis of least
+//! surface").
 
 use glam::Vec3A;
 
@@ -47,9 +48,9 @@ pub(super) fn cut_axis(entries: &[Entry], cut: usize) -> usize {
     // The cut's place in the sample, with at least one entry on each side.
     let at = ((cut * m + n / 2) / n).clamp(1, m - 1);
     // Centre keys, then a scramble of the entry's child index for equal
-    // centres, then the entry's place in the sample: one
-    // integer selection per axis, which measured faster than a selection
-    // of tuples by comparator.
+    // centres, then the entry's place in the sample: one integer selection
+    // per axis, which measured faster than a selection of tuples by
+    // comparator.
     let mut order = [0u64; SAMPLE_MOST];
     let mut best = (f64::INFINITY, 0);
     for axis in 0..3 {
