@@ -41,22 +41,22 @@ pub(super) fn cut_axis(entries: &[Entry], cut: usize) -> usize {
         return 0;
     }
     let sample = Sample::of(entries);
-    let (lo, hi, tie, m) = (&sample.lo, &sample.hi, &sample.tie, sample.len);
+    let (lo, hi, m) = (&sample.lo, &sample.hi, sample.len);
     if m < 2 {
         return 0;
     }
     // The cut's place in the sample, with at least one entry on each side.
     let at = ((cut * m + n / 2) / n).clamp(1, m - 1);
-    // Centre keys, then a scramble of the entry's child index for equal
-    // centres, then the entry's place in the sample: one integer selection
-    // per axis, which measured faster than a selection of tuples by
-    // comparator.
+    // Centre keys with the entry's place in the sample in the low byte: one
+    // integer selection per axis, which measured faster than a selection
+    // of tuples by comparator. Equal centres fall by their place, as in the
+    // cut itself (`select_nth_unstable_by` on the entries).
     let mut order = [0u64; SAMPLE_MOST];
     let mut best = (f64::INFINITY, 0);
     for axis in 0..3 {
         for (i, slot) in order[..m].iter_mut().enumerate() {
             let centre = u64::from(ordered_bits(lo[i][axis] + hi[i][axis]));
-            *slot = centre << 32 | u64::from(tie[i] >> 8) << 8 | i as u64;
+            *slot = centre << 8 | i as u64;
         }
         let order = &mut order[..m];
         order.select_nth_unstable(at);
@@ -79,8 +79,8 @@ pub(super) fn cut_axis(entries: &[Entry], cut: usize) -> usize {
     best.1
 }
 
-/// The entries a cut is judged from, their bounds' corners and the
-/// scrambles of their child indices (for ties): all of a range of up to
+/// The entries a cut is judged from, their bounds' corners: all of a range
+/// of up to
 /// [`SAMPLE_MOST`], every `k`-th entry of a longer range (`k` the range's
 /// length ÷ [`SAMPLE_MOST`], rounded up). A strided sample depends on the
 /// entries' order, so a rebuild at once and one in steps start from the
@@ -90,7 +90,6 @@ pub(super) fn cut_axis(entries: &[Entry], cut: usize) -> usize {
 struct Sample {
     lo: [Vec3A; SAMPLE_MOST],
     hi: [Vec3A; SAMPLE_MOST],
-    tie: [u32; SAMPLE_MOST],
     len: usize,
 }
 
@@ -99,7 +98,6 @@ impl Sample {
         let mut sample = Sample {
             lo: [Vec3A::ZERO; SAMPLE_MOST],
             hi: [Vec3A::ZERO; SAMPLE_MOST],
-            tie: [0; SAMPLE_MOST],
             len: 0,
         };
         let step = entries.len().div_ceil(SAMPLE_MOST).max(1);
@@ -107,18 +105,10 @@ impl Sample {
             let i = sample.len;
             sample.lo[i] = entry.bound.min.into();
             sample.hi[i] = entry.bound.max.into();
-            sample.tie[i] = scramble(entry.child);
             sample.len += 1;
         }
         sample
     }
-}
-
-/// A bijection of `u32` that spreads consecutive indices over the range
-/// (Fibonacci hashing): which of several entries with the same centre falls
-/// on which side of a cut then depends on the entries, not their order.
-fn scramble(index: u32) -> u32 {
-    index.wrapping_mul(0x9E37_79B9)
 }
 
 /// The bits of `key` as an integer that orders as [`f32::total_cmp`]
