@@ -291,17 +291,17 @@ impl World {
         }
         self.bullets = kept;
     }
+}
 
-    /// Fresh bulk loads of every tree's current entries.
-    fn fresh(&self) -> [RTree<u32>; 3] {
-        [&self.all, &self.enemies, &self.barrels].map(|tree| {
-            let mut fresh = RTree::new();
-            fresh
-                .insert_bulk(tree.iter().map(|(_, key, aabb)| (key, aabb)))
-                .unwrap();
-            fresh
-        })
-    }
+/// Fresh bulk loads of the entries of `trees`.
+fn fresh_loads(trees: &[RTree<u32>; 3]) -> [RTree<u32>; 3] {
+    trees.each_ref().map(|tree| {
+        let mut fresh = RTree::new();
+        fresh
+            .insert_bulk(tree.iter().map(|(_, key, aabb)| (key, aabb)))
+            .unwrap();
+        fresh
+    })
 }
 
 fn bullet_box(centre: Vec3) -> Aabb {
@@ -332,10 +332,9 @@ const FAMILIES: [&str; 6] = [
     "1,000 box queries",
 ];
 
-/// How many of the last frames the nodes are counted over, and how
-/// often.
+/// How many of the last frames the nodes are counted over (every one of
+/// them).
 const SAMPLED_FRAMES: u32 = 200;
-const SAMPLE_EVERY: u32 = 10;
 
 impl Queries {
     fn new(scene: &mut TownScene) -> Queries {
@@ -445,20 +444,24 @@ fn run(
     let mut world = World::new(&scene, rebuild_budget, work_away);
     let queries = Queries::new(&mut scene);
     let mut maintenance = Vec::new();
-    let mut sampled = [0u64; 2];
+    let mut kept: Vec<[RTree<u32>; 3]> = Vec::new();
     for frame in 0..frames {
         let start = Instant::now();
         maintenance.push(world.advance(pattern));
         // A rebuilt tree wears until the next swap, so one look at the end
-        // lands anywhere on that saw-tooth: the nodes are also counted
-        // every tenth frame of the last 200, against a fresh load of the
-        // entries of that frame (in the frame's waiting time).
-        if frames - frame <= SAMPLED_FRAMES && (frames - frame).is_multiple_of(SAMPLE_EVERY) {
-            let fresh = world.fresh();
-            let maintained = [&world.all, &world.enemies, &world.barrels];
-            let counts = nodes_visited(&queries, [maintained, fresh.each_ref()]);
-            sampled[0] += counts[0];
-            sampled[1] += counts[1];
+        // lands anywhere on that saw-tooth: the trees of each of the last
+        // 200 frames are kept (a copy takes a millisecond or two of the
+        // frame's waiting time) and measured after the run against fresh
+        // loads of their entries. Measuring within the frame took tens of
+        // milliseconds, which stretched the measured frames, gave the
+        // rebuild's worker more time in them, and with a look every tenth
+        // frame locked onto one phase of the saw-tooth.
+        if frames - frame <= SAMPLED_FRAMES {
+            kept.push([
+                world.all.clone(),
+                world.enemies.clone(),
+                world.barrels.clone(),
+            ]);
         }
         // The rest of a game's frame, on this thread: the rebuild's worker
         // runs meanwhile, as it would beside the game's own systems.
@@ -468,72 +471,88 @@ fn run(
     }
     let tail = &maintenance[maintenance.len().saturating_sub(200)..];
     let per_frame = tail.iter().sum::<f64>() / tail.len() as f64;
+    // A pattern with phases (the crowd gathers for 300 frames, then
+    // scatters) costs differently in each: the last 200 frames are one
+    // phase, the mean over every frame is all of them.
+    let per_frame_all = maintenance.iter().sum::<f64>() / maintenance.len().max(1) as f64;
     // The first frame after the load is the slowest of all anyway.
     let worst = maintenance.iter().skip(1).copied().fold(0.0, f64::max);
     world.all.validate().unwrap();
     let rebuilds = world.all.take_maintenance_stats().rebuilds;
-    let fresh = world.fresh();
-    let maintained = [world.all, world.enemies, world.barrels];
-    let over_the_tail = sampled[0] as f64 / sampled[1].max(1) as f64;
-    let mut rows = vec![(
-        "maintained",
-        compare(pattern, &maintained, &fresh, &queries),
-    )];
+    let mut rows = Vec::new();
     if retiled {
         // The same entries retiled in place, each keeping the enlarged box
         // the tree gave it: what a rebuild can restore.
-        let again = maintained.clone().map(|mut tree| {
-            tree.start_rebuild();
-            while !tree.step_rebuild_units(usize::MAX) {}
-            tree
-        });
-        rows.push(("retiled", compare(pattern, &again, &fresh, &queries)));
+        let again: Vec<[RTree<u32>; 3]> = kept
+            .iter()
+            .map(|trees| {
+                trees.clone().map(|mut tree| {
+                    tree.start_rebuild();
+                    while !tree.step_rebuild_units(usize::MAX) {}
+                    tree
+                })
+            })
+            .collect();
+        rows.push(("retiled", compare(pattern, &again, &queries)));
     }
+    rows.insert(0, ("maintained", compare(pattern, &kept, &queries)));
     for (label, (times, work)) in rows {
         let cells: Vec<String> = times.iter().map(|r| format!("{r:.2}")).collect();
-        let tail = if label == "maintained" {
-            format!("{over_the_tail:.2}")
-        } else {
-            String::from("–")
-        };
         println!(
-            "| {pattern:?}, {label} | {} | {work:.2} | {tail} | {per_frame:.3} | {worst:.2} | {rebuilds} |",
+            "| {pattern:?}, {label} | {} | {work:.2} | {per_frame:.3} | {per_frame_all:.3} | {worst:.2} | {rebuilds} |",
             cells.join(" | ")
         );
     }
 }
 
-/// Each family's median time on `trees` ÷ on `fresh` (alternating runs),
-/// and the nodes all families visited on `trees` ÷ on `fresh`.
-fn compare(
-    pattern: Pattern,
-    trees: &[RTree<u32>; 3],
-    fresh: &[RTree<u32>; 3],
-    queries: &Queries,
-) -> (Vec<f64>, f64) {
-    let mut ws = QueryWorkspace::default();
-    let mut cells = Vec::new();
-    for (f, family) in FAMILIES.iter().enumerate() {
-        let (mut kept, mut new) = (Vec::new(), Vec::new());
-        for rep in 0..7 {
-            let mut run = |which: usize| {
-                let set = if which == 0 { trees } else { fresh };
-                queries.run(f, set.each_ref(), &mut ws)
-            };
-            let (m, n) = if rep % 2 == 0 {
-                let m = run(0);
-                (m, run(1))
-            } else {
-                let n = run(1);
-                (run(0), n)
-            };
-            assert_eq!(m.1, n.1, "{pattern:?}: {family} answers differ");
-            kept.push(m.0);
-            new.push(n.0);
+/// Over the trees kept from the last frames, each against a fresh load of
+/// its own entries: each family's time summed over the frames (per frame
+/// and side the median of three runs) ÷ the fresh loads' sum, and the
+/// nodes all families visited ÷ the fresh loads' nodes.
+fn compare(pattern: Pattern, kept: &[[RTree<u32>; 3]], queries: &Queries) -> (Vec<f64>, f64) {
+    let mut ws = [QueryWorkspace::default(), QueryWorkspace::default()];
+    let mut sums = vec![[0.0f64; 2]; FAMILIES.len()];
+    let mut visited = [0u64; 2];
+    for (i, kept) in kept.iter().enumerate() {
+        // Both sides freshly allocated, in turn first, so that neither
+        // keeps the better place in memory.
+        let (trees, fresh) = if i % 2 == 0 {
+            let trees = kept.clone();
+            (trees, fresh_loads(kept))
+        } else {
+            let fresh = fresh_loads(kept);
+            (kept.clone(), fresh)
+        };
+        let sets = [trees.each_ref(), fresh.each_ref()];
+        for (f, family) in FAMILIES.iter().enumerate() {
+            // Each side in a block of its own: one run that warms the
+            // caches with that tree (and gives the answer to compare), then
+            // three timed runs. Alternated runs of the two trees measured
+            // whichever ran first after the other a tenth slower or faster
+            // (two bulk loads of the same entries: 1,000 incoherent rays
+            // 1.09–1.16 one way round, 0.89–0.93 the other).
+            let order = if i % 2 == 0 { [0, 1] } else { [1, 0] };
+            let mut answers = [0; 2];
+            let mut times = [Vec::new(), Vec::new()];
+            for which in order {
+                answers[which] = queries.run(f, sets[which], &mut ws[which]).1;
+                for _ in 0..3 {
+                    times[which].push(queries.run(f, sets[which], &mut ws[which]).0);
+                }
+            }
+            assert_eq!(
+                answers[0], answers[1],
+                "{pattern:?}: {family} answers differ"
+            );
+            for which in 0..2 {
+                sums[f][which] += median(&mut times[which]);
+            }
         }
-        cells.push(median(&mut kept) / median(&mut new));
+        let counts = nodes_visited(queries, sets);
+        visited[0] += counts[0];
+        visited[1] += counts[1];
     }
-    let visited = nodes_visited(queries, [trees.each_ref(), fresh.each_ref()]);
+    let cells = sums.iter().map(|[m, n]| m / n).collect();
     (cells, visited[0] as f64 / visited[1].max(1) as f64)
 }
 
@@ -569,8 +588,9 @@ fn main() {
         .map(|(_, a)| a)
         .collect();
     println!(
-        "{frames} frames, 100,000 entities; maintained ÷ fresh bulk load, medians of 7 \
-         alternating runs; rebuild in slices: {rebuild_budget:?} per tree and frame{}{}",
+        "{frames} frames, 100,000 entities; maintained ÷ fresh bulk loads of the same \
+         entries, over each of the last {SAMPLED_FRAMES} frames (times: per frame the median of 3 \
+         runs in a block of each); rebuild in slices: {rebuild_budget:?} per tree and frame{}{}",
         if work_away {
             ", the work on another thread"
         } else {
@@ -583,7 +603,7 @@ fn main() {
     );
     println!();
     println!(
-        "| pattern | {} | nodes visited | nodes, last {SAMPLED_FRAMES} frames | maintenance ms/frame | worst frame ms | rebuilds |",
+        "| pattern | {} | nodes visited | maintenance ms/frame, last {SAMPLED_FRAMES} | maintenance ms/frame, all | worst frame ms | rebuilds |",
         FAMILIES.join(" | ")
     );
     println!(
