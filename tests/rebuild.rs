@@ -418,3 +418,50 @@ fn changes_waiting_after_long_work_away_are_spread_over_steps() {
         "swapped {frames} frames after the work"
     );
 }
+
+/// A move made while the rebuild's work was away reaches the new tiling
+/// with the enlarged box the tree gave it then, not one stretched over
+/// every frame the work took: a walker three steps on would otherwise get
+/// three steps' stretch ahead of it, a box that grows the leaves of a
+/// crowd that all walk (the decay bench's crowd).
+#[test]
+fn moves_made_while_the_work_was_away_keep_the_enlarged_box_they_were_given() {
+    let mut tree = RTree::new();
+    let mut rng = SceneRng::new(7);
+    let mut centres = Vec::new();
+    let mut ids = Vec::new();
+    for i in 0..3_000u32 {
+        let centre = Vec3::new(
+            rng.range(0.0, 400.0),
+            rng.range(0.0, 10.0),
+            rng.range(0.0, 400.0),
+        );
+        ids.push(tree.insert(i, cube(centre, 0.5)).unwrap());
+        centres.push(centre);
+    }
+    tree.rebuild();
+    tree.start_rebuild();
+    let mut work = tree.take_rebuild_work().unwrap();
+    // Three frames of walking while the work is away: the first step
+    // leaves the walker's enlarged box and stretches a new one two metres
+    // ahead, which the next two steps stay inside.
+    let step = Vec3::new(0.5, 0.0, 0.0);
+    for _ in 0..3 {
+        for (id, centre) in ids.iter().zip(&mut centres) {
+            *centre += step;
+            tree.update(*id, cube(*centre, 0.5)).unwrap();
+        }
+    }
+    let given: Vec<Aabb> = ids
+        .iter()
+        .map(|&id| tree.enlarged_box(id).unwrap())
+        .collect();
+    work.run();
+    assert!(tree.finish_rebuild_work(work));
+    while !tree.step_rebuild(Duration::from_secs(1)) {}
+    tree.validate().unwrap();
+    for (i, &id) in ids.iter().enumerate() {
+        assert_eq!(tree.enlarged_box(id).unwrap(), given[i], "entry {i}");
+        assert_eq!(tree.get(id).unwrap(), (i as u32, cube(centres[i], 0.5)));
+    }
+}

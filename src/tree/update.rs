@@ -149,7 +149,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// [`Self::move_proxy`] in this structure (a rebuild under way is told
     /// afterwards).
     #[inline(always)]
-    pub(super) fn move_proxy_here(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
+    fn move_proxy_here(&mut self, proxy: u32, aabb: Aabb) -> MoveKind {
         let (leaf, lane, fat) = {
             let p = &self.proxies[proxy as usize];
             (p.leaf, p.lane as usize, p.fat)
@@ -163,6 +163,23 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let old = self.nodes[leaf as usize].lane_box(lane);
         let displacement = (aabb.min - old.min + aabb.max - old.max) * 0.5;
         let new_fat = self.settings.fatten(&aabb, displacement);
+        self.move_proxy_with_fat(proxy, aabb, new_fat)
+    }
+
+    /// Moves the entry in `proxy` to `aabb` with the enlarged box `new_fat`
+    /// (which contains it): a lane write if `new_fat` fits its leaf's bound,
+    /// else the leaf's bound grown, else a reinsertion.
+    #[inline(always)]
+    pub(super) fn move_proxy_with_fat(
+        &mut self,
+        proxy: u32,
+        aabb: Aabb,
+        new_fat: Aabb,
+    ) -> MoveKind {
+        let (leaf, lane) = {
+            let p = &self.proxies[proxy as usize];
+            (p.leaf, p.lane as usize)
+        };
         if self.leaf_bound_contains(leaf, &new_fat) {
             self.proxies[proxy as usize].fat = new_fat;
             self.nodes[leaf as usize].set_lane_box(lane, &aabb);
