@@ -465,3 +465,59 @@ fn moves_made_while_the_work_was_away_keep_the_enlarged_box_they_were_given() {
         assert_eq!(tree.get(id).unwrap(), (i as u32, cube(centres[i], 0.5)));
     }
 }
+
+/// A teleport wears the tiling as a respawn does (a hole in one place, an
+/// entry far away): teleporting a seventh of the entries makes the tree
+/// worn (a quarter, counted twice, less the few that land in a leaf
+/// already grown to hold them), as removing and inserting them again does,
+/// where a seventh of them stepping aside does not.
+#[test]
+fn a_teleport_wears_the_tiling_as_a_respawn_does() {
+    let build = || {
+        let mut tree = RTree::new();
+        let mut rng = SceneRng::new(11);
+        let boxes: Vec<Aabb> = (0..4_000)
+            .map(|_| {
+                cube(
+                    Vec3::new(rng.range(0.0, 1_000.0), 0.0, rng.range(0.0, 1_000.0)),
+                    0.5,
+                )
+            })
+            .collect();
+        let ids: Vec<ProxyId> = boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| tree.insert(i as u32, *b).unwrap())
+            .collect();
+        tree.rebuild();
+        assert!(!tree.is_worn());
+        (tree, boxes, ids)
+    };
+    let far = |b: &Aabb| {
+        cube(
+            b.min + Vec3::new(0.5, 0.0, 0.5) + Vec3::new(0.0, 0.0, 5_000.0),
+            0.5,
+        )
+    };
+    let (mut teleported, boxes, ids) = build();
+    for (id, b) in ids.iter().zip(&boxes).step_by(7) {
+        teleported.update(*id, far(b)).unwrap();
+    }
+    teleported.validate().unwrap();
+    assert!(teleported.is_worn());
+
+    let (mut respawned, boxes, ids) = build();
+    for (i, (id, b)) in ids.iter().zip(&boxes).enumerate().step_by(7) {
+        respawned.remove(*id).unwrap();
+        respawned.insert(i as u32, far(b)).unwrap();
+    }
+    assert!(respawned.is_worn());
+
+    let (mut stepped, boxes, ids) = build();
+    for (id, b) in ids.iter().zip(&boxes).step_by(7) {
+        stepped
+            .update(*id, cube(b.min + Vec3::splat(0.5) + Vec3::X * 0.2, 0.5))
+            .unwrap();
+    }
+    assert!(!stepped.is_worn());
+}

@@ -208,9 +208,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Keeps the tiling as good as fresh within `budget` a call: starts a
-    /// rebuild when the changes that wear the tiling (inserts, removals,
-    /// moves that grew a leaf or were reinserted) since the last one reach
-    /// a quarter of the entries, and advances it by `budget`; returns
+    /// rebuild when the changes that wear the tiling (see
+    /// [`RTree::is_worn`]) since the last one reach a quarter of the
+    /// entries, and advances it by `budget`; returns
     /// whether one was swapped in. Call it once a frame.
     ///
     /// What it buys, measured on the standard scene's 100,000 entities
@@ -255,8 +255,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Whether the changes that wear the tiling (inserts, removals, moves
-    /// that grew a leaf or were reinserted) since the last rebuild reach a
-    /// quarter of the entries: the point where
+    /// that grew a leaf or were reinserted, a jump reinserted counting
+    /// twice, as the removal and insert of a respawn do) since the last
+    /// rebuild reach a quarter of the entries: the point where
     /// [`RTree::rebuild_when_worn`] starts one.
     ///
     /// ```

@@ -155,12 +155,19 @@ impl TreeSettings {
     /// [`TreeSettings::jump_limit`]).
     #[inline]
     fn stretch(&self, exact: &Aabb, displacement: Vec3) -> Vec3 {
-        let size = exact.extent().max_element().max(self.margin);
-        if displacement.abs().max_element() > self.jump_limit * size {
+        if self.is_jump(exact, displacement) {
             Vec3::ZERO
         } else {
             displacement * self.displacement_factor
         }
+    }
+
+    /// Whether a move of `exact` by `displacement` is a jump rather than
+    /// motion (see [`TreeSettings::jump_limit`]).
+    #[inline]
+    pub(crate) fn is_jump(&self, exact: &Aabb, displacement: Vec3) -> bool {
+        let size = exact.extent().max_element().max(self.margin);
+        displacement.abs().max_element() > self.jump_limit * size
     }
 }
 
