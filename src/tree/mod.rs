@@ -112,8 +112,8 @@ pub struct RTree<K, const W: usize = 16> {
     /// A rebuild under way ([`RTree::start_rebuild`]).
     rebuild_job: Option<Box<rebuild::RebuildJob<W>>>,
     /// Changes that wear the tiling (inserts, removals, moves that grew a
-    /// leaf or were reinserted, a reinserted jump twice) since the last
-    /// bulk load or rebuild.
+    /// leaf or were reinserted, a jump that left its leaf twice) since the
+    /// last bulk load or rebuild.
     wear: u64,
 }
 

@@ -255,10 +255,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Whether the changes that wear the tiling (inserts, removals, moves
-    /// that grew a leaf or were reinserted, a jump reinserted counting
-    /// twice, as the removal and insert of a respawn do) since the last
-    /// rebuild reach a quarter of the entries: the point where
-    /// [`RTree::rebuild_when_worn`] starts one.
+    /// that grew a leaf or were reinserted, a jump that left its leaf
+    /// counting twice, as the removal and insert of a respawn do; see
+    /// [`TreeSettings::jump_limit`](crate::TreeSettings::jump_limit))
+    /// since the last rebuild reach a quarter of the entries: the point
+    /// where [`RTree::rebuild_when_worn`] starts one.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};

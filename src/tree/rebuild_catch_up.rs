@@ -257,7 +257,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             // steps: where a whole crowd walks, twice as far ahead as the
             // tree's own boxes after two frames away, and leaves grown to
             // hold it. The decay bench's crowd (60 Hz, 2,000 frames, nodes
-            // over the last 200 frames ÷ fresh): 1.27–1.29 → 1.19.
+            // over the last 200 frames ÷ fresh): 1.28–1.30 → 1.18–1.19.
             self.move_proxy_with_fat(slot, exact, fat);
             return;
         }

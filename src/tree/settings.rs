@@ -60,7 +60,10 @@ pub struct TreeSettings {
     /// box's largest extent, or `margin` if that is larger). A longer move
     /// is a jump: its enlarged box gets no stretch, so a teleport across
     /// the world does not leave a box kilometres long behind for every
-    /// later small move to stay inside. Range `[0, 1e4]`.
+    /// later small move to stay inside, and a jump that leaves its leaf
+    /// wears the tiling twice toward a rebuild
+    /// ([`RTree::is_worn`](crate::RTree::is_worn)), as a respawn does.
+    /// Range `[0, 1e4]`.
     ///
     /// The default, `2`: a vehicle at 30 m/s at 60 Hz moves 0.5 m a frame,
     /// one size of the standard scene's smallest boxes, so every mover of
