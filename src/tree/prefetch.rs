@@ -53,13 +53,17 @@ impl<K, const W: usize> RTree<K, W> {
     }
 
     /// Asks the CPU to start loading the lane bounds of the node at `index`
-    /// (six of its eight lines at the default width): what a move inside its
-    /// enlarged box writes.
+    /// (six of its eight lines at the default width), what a move inside its
+    /// enlarged box writes, and the leaf's held bound, which a move out of
+    /// that box reads.
     #[inline(always)]
     pub(crate) fn prefetch_leaf_for_move(&self, index: u32) {
         if let Some(node) = self.nodes.get(index as usize) {
             prefetch_lines(&node.min);
             prefetch_lines(&node.max);
+        }
+        if let Some(held) = self.held_bounds.get(index as usize) {
+            prefetch_lines(held);
         }
     }
 
