@@ -17,6 +17,7 @@ use bevy_camera::visibility::{
     VisibleEntities,
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin, OrthographicProjection, Projection};
+use bevy_ecs::change_detection::Tick;
 use bevy_ecs::prelude::*;
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
@@ -63,6 +64,8 @@ struct Twins {
     rng: SceneRng,
     /// Half the width of the square the entities are spread over, in metres.
     spread: f32,
+    /// Each world's change tick before its last update.
+    before: [Tick; 2],
 }
 
 impl Twins {
@@ -74,6 +77,7 @@ impl Twins {
             cameras: Vec::new(),
             rng: SceneRng::new(seed),
             spread: 100.0,
+            before: [Tick::new(0); 2],
         }
     }
 
@@ -260,25 +264,27 @@ impl Twins {
         }
     }
 
-    /// Every entity's `ViewVisibility` and every camera's visible lists,
-    /// mapped to spawn order, are the same in both worlds.
+    /// Every entity's `ViewVisibility` (and whether the last update marked
+    /// it changed) and every camera's visible lists, mapped to spawn order,
+    /// are the same in both worlds.
     fn check(&mut self, frame: usize) -> usize {
         let mut visible = 0;
+        let seen = |app: &App, entity: Entity, before: Tick| {
+            let world = app.world();
+            let entity = world.get_entity(entity).ok()?;
+            let value = entity.get::<ViewVisibility>()?.get();
+            let ticks = entity.get_change_ticks::<ViewVisibility>()?;
+            let marked = ticks.is_changed(before, world.read_change_tick());
+            Some((value, marked))
+        };
         for (i, pair) in self.entities.iter().enumerate() {
-            let bevy = self
-                .bevy
-                .world()
-                .get_entity(pair[0])
-                .ok()
-                .and_then(|e| e.get::<ViewVisibility>().map(|v| v.get()));
-            let ours = self
-                .ours
-                .world()
-                .get_entity(pair[1])
-                .ok()
-                .and_then(|e| e.get::<ViewVisibility>().map(|v| v.get()));
-            assert_eq!(bevy, ours, "frame {frame}: ViewVisibility of entity {i}");
-            visible += usize::from(bevy == Some(true));
+            let bevy = seen(&self.bevy, pair[0], self.before[0]);
+            let ours = seen(&self.ours, pair[1], self.before[1]);
+            assert_eq!(
+                bevy, ours,
+                "frame {frame}: ViewVisibility of entity {i} (value, marked changed)"
+            );
+            visible += usize::from(bevy.is_some_and(|(value, _)| value));
         }
         let order = |app: &App, side: usize| {
             let index: std::collections::HashMap<Entity, usize> = self
@@ -310,6 +316,10 @@ impl Twins {
     }
 
     fn update(&mut self) {
+        self.before = [
+            self.bevy.world().read_change_tick(),
+            self.ours.world().read_change_tick(),
+        ];
         self.bevy.update();
         self.ours.update();
     }

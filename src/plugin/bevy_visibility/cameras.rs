@@ -9,6 +9,7 @@ use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, NoFrustumCulling, RenderLayers, SetViewVisibility,
     ViewVisibility, VisibilityClass, VisibilityRange, VisibleEntities, VisibleEntityRanges,
 };
+use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::QueryData;
 use bevy_tasks::ComputeTaskPool;
@@ -17,11 +18,12 @@ use bevy_utils::Parallel;
 use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
+use super::radix;
+use super::rows::{RowAt, RowData, decide_proven_by_rows};
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
-use crate::tree::prefetch::prefetch_lines;
 
 /// What Bevy's culling reads of an entity (the same query as its own).
 type Culled<'a> = (
@@ -39,17 +41,6 @@ type Culled<'a> = (
 
 type CulledItem<'w, 's> = <Culled<'static> as QueryData>::Item<'w, 's>;
 
-/// What a candidate the tree proved inside needs read: everything but
-/// its box and transform. A look-up binds each term of its query to the
-/// entity's table, so the fewer, the cheaper.
-type Proven<'a> = (
-    &'a InheritedVisibility,
-    &'a mut ViewVisibility,
-    Option<&'a VisibilityClass>,
-    Option<&'a RenderLayers>,
-    Has<VisibilityRange>,
-);
-
 /// The entities of Bevy's culling set that are not in the tree by
 /// construction: no `Aabb`, or `NoFrustumCulling`.
 type OutsideTheTree = (
@@ -60,20 +51,12 @@ type OutsideTheTree = (
     Or<(Without<BevyAabb>, With<NoFrustumCulling>)>,
 );
 
-/// How many candidates ahead of the one decided are looked up, and their
-/// rows' data requested, so that their cache misses overlap with the
-/// decisions in between (in a 1,000,000 entity map the look-ups of 20,000
-/// candidates took 3.6 ms with none; reading the entity's row eight ahead
-/// made the step 7.33 → 6.53 ms, prefetching its components' data too
-/// about 0.5 ms less again; sixteen ahead measured the same as eight).
-const LOOK_AHEAD: usize = 8;
-
 /// Cameras decided in one pass over the entities (two bits each in a
 /// `u16` per entity: candidate, and proven inside).
 const VIEWS_PER_PASS: usize = 8;
 
 /// What Bevy's tests read of one active camera.
-struct Sight {
+pub(super) struct Sight {
     camera: Entity,
     frustum: BevyFrustum,
     mask: RenderLayers,
@@ -83,10 +66,10 @@ struct Sight {
 
 /// The entities a view saw, per visibility class.
 #[derive(Default)]
-struct Seen(Vec<(TypeId, Vec<Entity>)>);
+pub(super) struct Seen(Vec<(TypeId, Vec<Entity>)>);
 
 impl Seen {
-    fn push(&mut self, entity: Entity, class: TypeId) {
+    pub(super) fn push(&mut self, entity: Entity, class: TypeId) {
         match self.0.iter_mut().find(|(c, _)| *c == class) {
             Some((_, list)) => list.push(entity),
             None => self.0.push((class, vec![entity])),
@@ -136,6 +119,10 @@ pub(super) struct Scratch {
     one_by_one: Vec<Entity>,
     /// Per thread of the pass in storage order, what each view saw.
     seen: Parallel<Vec<Seen>>,
+    /// The candidates' rows, for the look-ups by row.
+    located: Vec<RowAt>,
+    /// Working space of the candidates' sort.
+    sort_spare: Vec<(Entity, bool)>,
 }
 
 /// Replaces Bevy's `check_visibility_cpu_culling`, in
@@ -159,8 +146,9 @@ pub(super) fn check_visibility_from_index(
     )>,
     mut entities: ParamSet<(
         Query<Culled<'_>, Without<NoCpuCulling>>,
-        Query<Proven<'_>, Without<NoCpuCulling>>,
+        Query<RowData<'_>, Without<NoCpuCulling>>,
     )>,
+    bevy_entities: &Entities,
     outside_the_tree: Query<Entity, OutsideTheTree>,
     index: Res<SpatialIndex<Renderable>>,
     ranges: Option<Res<VisibleEntityRanges>>,
@@ -227,27 +215,19 @@ pub(super) fn check_visibility_from_index(
     } else {
         for view in &mut views {
             let mut candidates = std::mem::take(&mut view.candidates);
-            // In entity order, which follows storage order where entities
-            // were spawned together: neighbouring look-ups share cache
-            // lines and pages.
-            candidates.sort_unstable_by_key(|c| c.0.index_u32());
-            let mut proven = entities.p1();
-            for (i, &(entity, inside)) in candidates.iter().enumerate() {
-                if let Some(&(ahead, _)) = candidates.get(i + LOOK_AHEAD)
-                    && let Ok((inherited, view_visibility, class, ..)) = proven.get(ahead)
-                {
-                    // The look-up found the rows; the data itself starts
-                    // loading now, to be there when its turn comes.
-                    prefetch_lines(inherited);
-                    prefetch_lines(view_visibility);
-                    if let Some(class) = class {
-                        prefetch_lines(class);
-                    }
-                }
-                if inside && let Ok(item) = proven.get_mut(entity) {
-                    decide_proven(&view.sight, &mut view.visible, entity, item, ranges);
-                }
-            }
+            // In `Entity` order, which Bevy's lists are kept in and which
+            // follows storage order where entities were spawned together:
+            // neighbouring look-ups share cache lines and pages.
+            radix::sort_by_key(&mut candidates, &mut scratch.sort_spare, |c| c.0.to_bits());
+            decide_proven_by_rows(
+                &mut entities.p1(),
+                bevy_entities,
+                &view.sight,
+                &mut view.visible,
+                &candidates,
+                &mut scratch.located,
+                ranges,
+            );
             let mut culled = entities.p0();
             for &(entity, inside) in &candidates {
                 if !inside && let Ok(mut item) = culled.get_mut(entity) {
@@ -426,21 +406,6 @@ fn decide_in_storage_order(
     }
 }
 
-/// [`decide`] for an entity the tree proved inside every plane: Bevy's
-/// other checks, through the narrower [`Proven`] query.
-fn decide_proven(
-    sight: &Sight,
-    seen: &mut Seen,
-    entity: Entity,
-    item: <Proven<'static> as QueryData>::Item<'_, '_>,
-    ranges: Option<&VisibleEntityRanges>,
-) {
-    let (inherited, mut view_visibility, class, mask, has_range) = item;
-    if may_be_seen(sight, entity, inherited, mask, has_range, ranges) {
-        see(seen, entity, &mut view_visibility, class);
-    }
-}
-
 /// Bevy's own decision for one entity and one view, as its culling system
 /// makes it; `proven` skips the frustum tests for an entity the tree has
 /// shown to lie inside every plane they test.
@@ -492,7 +457,7 @@ fn decide(
 
 /// Bevy's checks before any frustum test: visible in the hierarchy, on a
 /// layer the camera renders, within its visibility range of the camera.
-fn may_be_seen(
+pub(super) fn may_be_seen(
     sight: &Sight,
     entity: Entity,
     inherited: &InheritedVisibility,

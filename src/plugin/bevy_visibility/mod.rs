@@ -12,6 +12,8 @@ mod cameras;
 mod frustum_candidates;
 #[cfg(feature = "bevy_light")]
 mod lights;
+mod radix;
+mod rows;
 mod sync;
 
 pub use sync::RenderableHandle;

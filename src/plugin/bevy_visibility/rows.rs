@@ -1,0 +1,180 @@
+//! The tree's proven candidates decided through their table rows: each
+//! candidate's location is looked up in Bevy's `Entities`, and its
+//! components are read from the column slices of its table, which a
+//! contiguous query hands over once per table.
+//!
+//! A `Query::get` per candidate binds every term of the query to the
+//! entity's table again; on a map of a million entities with twenty
+//! thousand candidates that binding, and the loads it waits on one after
+//! another, were most of the camera's step. Here the locations are looked
+//! up in one pass of independent loads (the processor overlaps them), and
+//! each candidate's rows are asked for a few candidates ahead of its turn.
+
+use std::panic::Location;
+
+use bevy_camera::visibility::{
+    InheritedVisibility, NoCpuCulling, RenderLayers, SetViewVisibility, ViewVisibility,
+    VisibilityClass, VisibilityRange, VisibleEntityRanges,
+};
+use bevy_ecs::change_detection::{ContiguousComponentTicksMut, ContiguousMut, MaybeLocation};
+use bevy_ecs::entity::Entities;
+use bevy_ecs::prelude::*;
+use bevy_ecs::storage::TableId;
+
+use super::cameras::{Seen, Sight, may_be_seen};
+use crate::tree::prefetch::prefetch_lines;
+
+/// What a proven candidate's decision reads and writes, per table.
+pub(super) type RowData<'a> = (
+    Entity,
+    &'a InheritedVisibility,
+    &'a mut ViewVisibility,
+    Option<&'a VisibilityClass>,
+    Option<&'a RenderLayers>,
+    Has<VisibilityRange>,
+);
+
+/// How many candidates ahead of the one decided its rows are asked for.
+const LOOK_AHEAD: usize = 8;
+
+/// One table's columns of [`RowData`].
+struct TableRows<'w> {
+    table: TableId,
+    inherited: &'w [InheritedVisibility],
+    view: &'w mut [ViewVisibility],
+    ticks: ContiguousComponentTicksMut<'w>,
+    class: Option<&'w [VisibilityClass]>,
+    layers: Option<&'w [RenderLayers]>,
+    has_range: bool,
+}
+
+/// Where a candidate's components are: its table among the query's, and
+/// its row.
+#[derive(Clone, Copy)]
+pub(super) struct RowAt {
+    table: u32,
+    row: u32,
+}
+
+/// Decides the proven candidates among `candidates` (entity, proven) for
+/// one view through their rows: Bevy's checks other than the frustum tests
+/// (visible in the hierarchy, on a layer the camera renders, within its
+/// visibility range), then `set_visible` and the view's lists, as Bevy's
+/// loop does for an entity that passes its tests. A candidate that is no
+/// longer spawned, or not in the query's tables, is skipped, as a failed
+/// `Query::get` skips it.
+pub(super) fn decide_proven_by_rows(
+    query: &mut Query<RowData<'_>, Without<NoCpuCulling>>,
+    entities: &Entities,
+    sight: &Sight,
+    seen: &mut Seen,
+    candidates: &[(Entity, bool)],
+    located: &mut Vec<RowAt>,
+    ranges: Option<&VisibleEntityRanges>,
+) {
+    let Ok(chunks) = query.contiguous_iter_mut() else {
+        unreachable!("the decisions' query reads table components only")
+    };
+    let mut tables: Vec<TableRows<'_>> = Vec::new();
+    for (ids, inherited, view, class, layers, has_range) in chunks {
+        let Some(&first) = ids.first() else { continue };
+        let Ok(at) = entities.get_spawned(first) else {
+            continue;
+        };
+        let (view, ticks) = ContiguousMut::bypass_change_detection_split(view);
+        tables.push(TableRows {
+            table: at.table_id,
+            inherited,
+            view,
+            ticks,
+            class,
+            layers,
+            has_range,
+        });
+    }
+    // The locations first, in a loop whose loads do not wait on each other.
+    located.clear();
+    let mut last = 0u32;
+    for &(entity, proven) in candidates {
+        let found = if proven {
+            entities.get_spawned(entity).ok().and_then(|at| {
+                if tables.get(last as usize)?.table != at.table_id {
+                    last = tables.iter().position(|t| t.table == at.table_id)? as u32;
+                }
+                Some(RowAt {
+                    table: last,
+                    row: at.table_row.index_u32(),
+                })
+            })
+        } else {
+            None
+        };
+        located.push(found.unwrap_or(RowAt {
+            table: u32::MAX,
+            row: 0,
+        }));
+    }
+    for (i, (&(entity, _), &at)) in candidates.iter().zip(located.iter()).enumerate() {
+        if let Some(&ahead) = located.get(i + LOOK_AHEAD)
+            && let Some(table) = tables.get(ahead.table as usize)
+        {
+            let row = ahead.row as usize;
+            prefetch_lines(&table.inherited[row]);
+            prefetch_lines(&table.view[row]);
+            if let Some(class) = table.class {
+                prefetch_lines(&class[row]);
+            }
+        }
+        let Some(table) = tables.get_mut(at.table as usize) else {
+            continue;
+        };
+        let row = at.row as usize;
+        let mask = table.layers.map(|layers| &layers[row]);
+        if !may_be_seen(
+            sight,
+            entity,
+            &table.inherited[row],
+            mask,
+            table.has_range,
+            ranges,
+        ) {
+            continue;
+        }
+        set_visible(table, row);
+        if let Some(class) = table.class {
+            for &id in class[row].iter() {
+                seen.push(entity, id);
+            }
+        }
+    }
+}
+
+/// Bevy's `set_visible` on one row: the value changed as Bevy changes it,
+/// and the row's change tick (and caller, where Bevy tracks it) written
+/// exactly when Bevy's would be.
+fn set_visible(table: &mut TableRows<'_>, row: usize) {
+    let (last_run, this_run) = (table.ticks.last_run(), table.ticks.this_run());
+    let mut value = table.view[row];
+    // `set_visible` reads neither tick: they only tell afterwards whether
+    // it marked the value changed (a tick no newer than `last_run` becomes
+    // `this_run`).
+    let mut added = last_run;
+    let mut changed = last_run;
+    let mut caller = Location::caller();
+    let mut visibility = Mut::new(
+        &mut value,
+        &mut added,
+        &mut changed,
+        None,
+        last_run,
+        this_run,
+        MaybeLocation::new_with(|| &mut caller),
+    );
+    visibility.set_visible();
+    let marked = visibility.is_changed();
+    table.view[row] = value;
+    if marked {
+        table.ticks.changed_mut()[row] = this_run;
+        table.ticks.changed_by_mut().map(|by| by[row] = caller);
+    }
+}
