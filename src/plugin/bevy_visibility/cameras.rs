@@ -20,13 +20,14 @@ use glam::Vec3;
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
 use super::radix;
 use super::rows::{RowAt, RowData, decide_proven_by_rows};
+use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
 
 /// What Bevy's culling reads of an entity (the same query as its own).
-type Culled<'a> = (
+pub(super) type Culled<'a> = (
     Entity,
     &'a InheritedVisibility,
     &'a mut ViewVisibility,
@@ -53,7 +54,7 @@ type OutsideTheTree = (
 
 /// Cameras decided in one pass over the entities (two bits each in a
 /// `u16` per entity: candidate, and proven inside).
-const VIEWS_PER_PASS: usize = 8;
+pub(super) const VIEWS_PER_PASS: usize = 8;
 
 /// What Bevy's tests read of one active camera.
 pub(super) struct Sight {
@@ -61,7 +62,7 @@ pub(super) struct Sight {
     frustum: BevyFrustum,
     mask: RenderLayers,
     /// The camera has `NoCpuCulling`: no frustum test at all.
-    no_culling: bool,
+    pub(super) no_culling: bool,
 }
 
 /// The entities a view saw, per visibility class.
@@ -82,7 +83,7 @@ impl Seen {
 
     /// Moves what `other` saw into this list (emptying `other`'s lists but
     /// keeping their allocations).
-    fn take_from(&mut self, other: &mut Seen) {
+    pub(super) fn take_from(&mut self, other: &mut Seen) {
         for (class, list) in &mut other.0 {
             match self.0.iter_mut().find(|(c, _)| c == class) {
                 Some((_, mine)) => mine.append(list),
@@ -93,17 +94,17 @@ impl Seen {
 }
 
 /// One active camera as Bevy's culling sees it, and what it saw.
-struct View {
-    sight: Sight,
+pub(super) struct View {
+    pub(super) sight: Sight,
     /// Where the camera is, which the tree's cull is rebased on.
     eye: Vec3,
     /// How many of its candidates the tree proved inside.
     proven: usize,
     /// Its candidates from the tree, and whether the tree proved each
     /// inside every plane Bevy tests (empty for `no_culling`).
-    candidates: Vec<(Entity, bool)>,
+    pub(super) candidates: Vec<(Entity, bool)>,
     /// Its visible entities per visibility class.
-    visible: Seen,
+    pub(super) visible: Seen,
 }
 
 /// Scratch kept from frame to frame.
@@ -314,98 +315,6 @@ fn cull_views(
     }
 }
 
-/// Decides the views of one pass together, walking the entities in
-/// storage order and testing each against the views that have it as a
-/// candidate (every view that culls nothing, and every view for the
-/// entities outside the tree).
-///
-/// The walk is Bevy's parallel iteration: on a task pool of several
-/// threads each thread gathers what it saw in its own lists, merged
-/// afterwards (the lists are sorted before they are handed to Bevy, so the
-/// order of the merge does not show).
-fn decide_in_storage_order(
-    views: &mut [View],
-    one_by_one: &[Entity],
-    culled: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
-    ranges: Option<&VisibleEntityRanges>,
-    marks: &mut Vec<u16>,
-    seen: &mut Parallel<Vec<Seen>>,
-    parallel: bool,
-) {
-    const CANDIDATE: u16 = 0b01;
-    const PROVEN: u16 = 0b10;
-    let mut mark = |entity: Entity, bits: u16| {
-        let at = entity.index_u32() as usize;
-        if marks.len() <= at {
-            marks.resize(at + 1, 0);
-        }
-        marks[at] |= bits;
-    };
-    let mut all = 0u16;
-    for (v, view) in views.iter().enumerate() {
-        let shift = 2 * v;
-        if view.sight.no_culling {
-            all |= CANDIDATE << shift;
-        }
-        for &(entity, proven) in &view.candidates {
-            mark(
-                entity,
-                (CANDIDATE | if proven { PROVEN } else { 0 }) << shift,
-            );
-        }
-        for &entity in one_by_one {
-            mark(entity, CANDIDATE << shift);
-        }
-    }
-    let mut visible: Vec<Seen> = views
-        .iter_mut()
-        .map(|v| std::mem::take(&mut v.visible))
-        .collect();
-    let sights: Vec<&Sight> = views.iter().map(|v| &v.sight).collect();
-    let marks_read: &[u16] = marks;
-    let walk = |lists: &mut Vec<Seen>, mut item: CulledItem<'_, '_>| {
-        let at = item.0.index_u32() as usize;
-        let mut bits = all | marks_read.get(at).copied().unwrap_or(0);
-        while bits != 0 {
-            let v = bits.trailing_zeros() as usize / 2;
-            let proven = bits >> (2 * v) & PROVEN != 0;
-            bits &= !(0b11 << (2 * v));
-            decide(sights[v], &mut lists[v], &mut item, proven, ranges);
-        }
-    };
-    if parallel {
-        culled.par_iter_mut().for_each_init(
-            || {
-                let mut lists = seen.borrow_local_mut();
-                lists.resize_with(sights.len(), Seen::default);
-                lists
-            },
-            |lists, item| walk(lists, item),
-        );
-        for local in seen.iter_mut() {
-            for (mine, list) in visible.iter_mut().zip(local.iter_mut()) {
-                mine.take_from(list);
-            }
-        }
-    } else {
-        // One thread: straight into the views' lists.
-        culled.iter_mut().for_each(|item| walk(&mut visible, item));
-    }
-    for (view, list) in views.iter_mut().zip(visible) {
-        view.visible = list;
-    }
-    // Cleared mark by mark, not by walking the entities: a marked entity
-    // the walk did not meet must not carry its marks into the next pass.
-    for view in views.iter() {
-        for &(entity, _) in &view.candidates {
-            marks[entity.index_u32() as usize] = 0;
-        }
-    }
-    for &entity in one_by_one {
-        marks[entity.index_u32() as usize] = 0;
-    }
-}
-
 /// Bevy's own decision for one entity and one view, as its culling system
 /// makes it; `proven` skips the frustum tests for an entity the tree has
 /// shown to lie inside every plane they test.
@@ -432,27 +341,40 @@ fn decide(
     if !may_be_seen(sight, entity, inherited, *mask, *has_range, ranges) {
         return;
     }
-    if !proven && !*no_frustum_culling && !sight.no_culling {
-        if let Some(aabb) = aabb {
-            let world_from_local = transform.affine();
-            let sphere = Sphere {
-                center: world_from_local.transform_point3a(aabb.center),
-                radius: transform.radius_vec3a(aabb.half_extents),
-            };
-            if !sight.frustum.intersects_sphere(&sphere, false)
-                || !sight
-                    .frustum
-                    .intersects_obb(aabb, &world_from_local, true, false)
-            {
-                return;
-            }
-        } else if let Some(sphere) = sphere
-            && !sight.frustum.intersects_sphere(sphere, false)
-        {
-            return;
-        }
+    if proven || passes_frustum(sight, *aabb, *sphere, transform, *no_frustum_culling) {
+        see(seen, entity, view_visibility, *class);
     }
-    see(seen, entity, view_visibility, *class);
+}
+
+/// Bevy's frustum tests for one entity and one view: its sphere test,
+/// then its oriented-box test without the far plane (for an entity with
+/// an `Aabb`), its sphere test alone (with a `Sphere` only), none (neither,
+/// `NoFrustumCulling`, or a camera with `NoCpuCulling`).
+pub(super) fn passes_frustum(
+    sight: &Sight,
+    aabb: Option<&BevyAabb>,
+    sphere: Option<&Sphere>,
+    transform: &GlobalTransform,
+    no_frustum_culling: bool,
+) -> bool {
+    if no_frustum_culling || sight.no_culling {
+        return true;
+    }
+    if let Some(aabb) = aabb {
+        let world_from_local = transform.affine();
+        let sphere = Sphere {
+            center: world_from_local.transform_point3a(aabb.center),
+            radius: transform.radius_vec3a(aabb.half_extents),
+        };
+        sight.frustum.intersects_sphere(&sphere, false)
+            && sight
+                .frustum
+                .intersects_obb(aabb, &world_from_local, true, false)
+    } else if let Some(sphere) = sphere {
+        sight.frustum.intersects_sphere(sphere, false)
+    } else {
+        true
+    }
 }
 
 /// Bevy's checks before any frustum test: visible in the hierarchy, on a

@@ -14,6 +14,7 @@ mod frustum_candidates;
 mod lights;
 mod radix;
 mod rows;
+mod storage_order;
 mod sync;
 
 pub use sync::RenderableHandle;

@@ -140,7 +140,7 @@ pub(super) fn decide_proven_by_rows(
         ) {
             continue;
         }
-        set_visible(table, row);
+        set_visible(table.view, &mut table.ticks, row);
         if let Some(class) = table.class {
             for &id in class[row].iter() {
                 seen.push(entity, id);
@@ -149,12 +149,16 @@ pub(super) fn decide_proven_by_rows(
     }
 }
 
-/// Bevy's `set_visible` on one row: the value changed as Bevy changes it,
-/// and the row's change tick (and caller, where Bevy tracks it) written
-/// exactly when Bevy's would be.
-fn set_visible(table: &mut TableRows<'_>, row: usize) {
-    let (last_run, this_run) = (table.ticks.last_run(), table.ticks.this_run());
-    let mut value = table.view[row];
+/// Bevy's `set_visible` on one row of a `ViewVisibility` column: the value
+/// changed as Bevy changes it, and the row's change tick (and caller, where
+/// Bevy tracks it) written exactly when Bevy's would be.
+pub(super) fn set_visible(
+    view: &mut [ViewVisibility],
+    ticks: &mut ContiguousComponentTicksMut<'_>,
+    row: usize,
+) {
+    let (last_run, this_run) = (ticks.last_run(), ticks.this_run());
+    let mut value = view[row];
     // `set_visible` reads neither tick: they only tell afterwards whether
     // it marked the value changed (a tick no newer than `last_run` becomes
     // `this_run`).
@@ -172,9 +176,9 @@ fn set_visible(table: &mut TableRows<'_>, row: usize) {
     );
     visibility.set_visible();
     let marked = visibility.is_changed();
-    table.view[row] = value;
+    view[row] = value;
     if marked {
-        table.ticks.changed_mut()[row] = this_run;
-        table.ticks.changed_by_mut().map(|by| by[row] = caller);
+        ticks.changed_mut()[row] = this_run;
+        ticks.changed_by_mut().map(|by| by[row] = caller);
     }
 }

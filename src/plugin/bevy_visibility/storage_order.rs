@@ -1,0 +1,141 @@
+//! The cameras decided together in one pass over the entities in storage
+//! order, where their candidates are a large part of all entities: each
+//! table's columns are walked row by row, and a row is decided for the
+//! views that marked its entity as a candidate.
+//!
+//! The walk reads the columns a contiguous query hands over once per table
+//! (or per batch, on several threads), so a row no view marked costs the
+//! read of its entity and its marks, not a binding of every term of
+//! Bevy's query to the row.
+
+use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
+use bevy_ecs::change_detection::ContiguousMut;
+use bevy_ecs::prelude::*;
+use bevy_ecs::query::ContiguousQueryData;
+use bevy_utils::Parallel;
+
+use super::cameras::{Culled, Seen, Sight, View, may_be_seen, passes_frustum};
+use super::rows::set_visible;
+
+/// One table's (or batch's) columns of [`Culled`].
+type Columns<'w, 's> = <Culled<'static> as ContiguousQueryData>::Contiguous<'w, 's>;
+
+/// Decides the views of one pass together, walking the entities in
+/// storage order and testing each against the views that have it as a
+/// candidate (every view that culls nothing, and every view for the
+/// entities outside the tree). `marks` is working space, per entity index,
+/// two bits per view of the pass (candidate, proven inside), all clear
+/// between calls.
+///
+/// On a task pool of several threads the walk is split as Bevy splits its
+/// own; each thread gathers what it saw in its own lists, merged afterwards
+/// (the lists are sorted before they are handed to Bevy, so the order of
+/// the merge does not show).
+pub(super) fn decide_in_storage_order(
+    views: &mut [View],
+    one_by_one: &[Entity],
+    culled: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
+    ranges: Option<&VisibleEntityRanges>,
+    marks: &mut Vec<u16>,
+    seen: &mut Parallel<Vec<Seen>>,
+    parallel: bool,
+) {
+    const CANDIDATE: u16 = 0b01;
+    const PROVEN: u16 = 0b10;
+    let mut mark = |entity: Entity, bits: u16| {
+        let at = entity.index_u32() as usize;
+        if marks.len() <= at {
+            marks.resize(at + 1, 0);
+        }
+        marks[at] |= bits;
+    };
+    let mut all = 0u16;
+    for (v, view) in views.iter().enumerate() {
+        let shift = 2 * v;
+        if view.sight.no_culling {
+            all |= CANDIDATE << shift;
+        }
+        for &(entity, proven) in &view.candidates {
+            mark(
+                entity,
+                (CANDIDATE | if proven { PROVEN } else { 0 }) << shift,
+            );
+        }
+        for &entity in one_by_one {
+            mark(entity, CANDIDATE << shift);
+        }
+    }
+    let mut visible: Vec<Seen> = views
+        .iter_mut()
+        .map(|v| std::mem::take(&mut v.visible))
+        .collect();
+    let sights: Vec<&Sight> = views.iter().map(|v| &v.sight).collect();
+    let marks_read: &[u16] = marks;
+    let walk = |lists: &mut Vec<Seen>, columns: Columns<'_, '_>| {
+        let (ids, inherited, view, class, layers, aabbs, spheres, transforms, unculled, has_range) =
+            columns;
+        let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(view);
+        for (row, &entity) in ids.iter().enumerate() {
+            let at = entity.index_u32() as usize;
+            let mut bits = all | marks_read.get(at).copied().unwrap_or(0);
+            while bits != 0 {
+                let v = bits.trailing_zeros() as usize / 2;
+                let proven = bits >> (2 * v) & PROVEN != 0;
+                bits &= !(0b11 << (2 * v));
+                let sight = sights[v];
+                let mask = layers.map(|layers| &layers[row]);
+                if !may_be_seen(sight, entity, &inherited[row], mask, has_range, ranges) {
+                    continue;
+                }
+                let aabb = aabbs.map(|aabbs| &aabbs[row]);
+                let sphere = spheres.map(|spheres| &spheres[row]);
+                if !proven && !passes_frustum(sight, aabb, sphere, &transforms[row], unculled) {
+                    continue;
+                }
+                set_visible(values, &mut ticks, row);
+                if let Some(class) = class {
+                    for &id in class[row].iter() {
+                        lists[v].push(entity, id);
+                    }
+                }
+            }
+        }
+    };
+    if parallel {
+        let Ok(batches) = culled.contiguous_par_iter_mut() else {
+            unreachable!("Bevy's culling query reads table components only")
+        };
+        batches.for_each_init(
+            || {
+                let mut lists = seen.borrow_local_mut();
+                lists.resize_with(sights.len(), Seen::default);
+                lists
+            },
+            |lists, columns| walk(lists, columns),
+        );
+        for local in seen.iter_mut() {
+            for (mine, list) in visible.iter_mut().zip(local.iter_mut()) {
+                mine.take_from(list);
+            }
+        }
+    } else {
+        // One thread: straight into the views' lists.
+        let Ok(tables) = culled.contiguous_iter_mut() else {
+            unreachable!("Bevy's culling query reads table components only")
+        };
+        tables.for_each(|columns| walk(&mut visible, columns));
+    }
+    for (view, list) in views.iter_mut().zip(visible) {
+        view.visible = list;
+    }
+    // Cleared mark by mark, not by walking the entities: a marked entity
+    // the walk did not meet must not carry its marks into the next pass.
+    for view in views.iter() {
+        for &(entity, _) in &view.candidates {
+            marks[entity.index_u32() as usize] = 0;
+        }
+    }
+    for &entity in one_by_one {
+        marks[entity.index_u32() as usize] = 0;
+    }
+}
