@@ -259,6 +259,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             let mut near = node.overlap_mask_among(&reach, node.used_lanes());
             if node.is_leaf() {
                 ws.stats.entries_tested += node.len() as u64;
+                if near != 0 {
+                    // The keys live apart from the leaf: asked for before
+                    // the lanes' distances are computed, their load overlaps
+                    // that work (1,000 queries of the 8 nearest, cold:
+                    // 0.254-0.257 -> 0.236-0.238 x rstar's time; warm the
+                    // same, 1.37 ms).
+                    self.prefetch_keys_of_leaf(node);
+                }
                 while near != 0 {
                     let lane = near.trailing_zeros() as usize;
                     near &= near - 1;
