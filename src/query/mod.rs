@@ -24,6 +24,7 @@ mod ray_avx;
 #[cfg(target_arch = "x86_64")]
 mod ray_avx512;
 mod ray_batch;
+mod ray_lanes;
 mod ray_origin;
 mod sphere;
 mod workspace;

@@ -20,7 +20,7 @@
 //! [`walk_is_avx`] (the standard library's run-time check) has found AVX;
 //! this file's unit test makes another the same way.
 //!
-//! [`ray_lanes`]: super::ray::ray_lanes
+//! [`ray_lanes`]: super::ray_lanes::ray_lanes
 
 use std::arch::x86_64::{
     __m256, _CMP_LE_OQ, _mm256_castps256_ps128, _mm256_cmp_ps, _mm256_extractf128_ps,
@@ -32,7 +32,7 @@ use std::ops::ControlFlow;
 
 use glam::Vec4;
 
-use super::ray::near_far_rows;
+use super::ray_lanes::near_far_rows;
 use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::tree::node::{LANES_PER_TEST, Node, four_lanes};
 use crate::tree::{QueryStats, RTree};
@@ -60,7 +60,7 @@ fn eight_lanes<const W: usize>(row: &[f32; W], first: usize) -> __m256 {
     _mm256_set_m128(high, low)
 }
 
-/// [`super::ray::ray_lanes`] for a ray with no zero direction component,
+/// [`super::ray_lanes::ray_lanes`] for a ray with no zero direction component,
 /// eight lanes at a time. `W` must be a multiple of eight.
 #[target_feature(enable = "avx")]
 #[inline]
@@ -130,7 +130,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 mod tests {
     use super::*;
     use crate::geometry::Ray;
-    use crate::query::ray::tests::lanes_agree_with_the_scalar_predicate;
+    use crate::query::ray_lanes::tests::lanes_agree_with_the_scalar_predicate;
 
     /// The AVX lane test on the rays `walk_is_avx` gives it.
     fn avx_lanes_agree_with_the_scalar_predicate<const W: usize>() -> usize {

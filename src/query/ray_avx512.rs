@@ -32,7 +32,7 @@ use std::ops::ControlFlow;
 use glam::Vec4;
 
 use super::join_avx512::{LANES_PER_AVX512_TEST, avx512_tests_nodes, sixteen_lanes};
-use super::ray::near_far_rows;
+use super::ray_lanes::near_far_rows;
 use crate::geometry::predicates::{RayTest, finite_limit};
 use crate::tree::node::{LANES_PER_TEST, Node};
 use crate::tree::{QueryStats, RTree};
@@ -47,7 +47,7 @@ pub(super) fn walk_is_avx512<const W: usize>(ray: &RayTest) -> bool {
     !ray.has_flat_axis && avx512_tests_nodes::<W>() && std::is_x86_feature_detected!("popcnt")
 }
 
-/// [`super::ray::ray_lanes`] for a ray with no zero direction component,
+/// [`super::ray_lanes::ray_lanes`] for a ray with no zero direction component,
 /// sixteen lanes at a time. `W` must be a multiple of sixteen.
 #[target_feature(enable = "avx512f")]
 #[inline]
@@ -262,7 +262,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 mod tests {
     use super::*;
     use crate::geometry::Ray;
-    use crate::query::ray::tests::lanes_agree_with_the_scalar_predicate;
+    use crate::query::ray_lanes::tests::lanes_agree_with_the_scalar_predicate;
 
     #[test]
     fn avx512_lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {

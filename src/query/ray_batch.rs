@@ -19,7 +19,8 @@
 use std::ops::{ControlFlow, Range};
 
 use super::QueryWorkspace;
-use super::ray::{RayHit, RayMode, ray_lanes};
+use super::ray::{RayHit, RayMode};
+use super::ray_lanes::ray_lanes;
 use crate::geometry::predicates::RayTest;
 use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
