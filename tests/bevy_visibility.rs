@@ -18,6 +18,7 @@ use bevy_camera::visibility::{
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin, OrthographicProjection, Projection};
 use bevy_ecs::change_detection::Tick;
+use bevy_ecs::entity_disabling::Disabled;
 use bevy_ecs::prelude::*;
 use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
@@ -535,4 +536,106 @@ fn entities_spawned_before_the_plugin_are_served_too() {
     }
     let index = apps[1].world().resource::<SpatialIndex<Renderable>>();
     assert_eq!(index.len(), 500);
+}
+
+/// A disabling component stored in a sparse set, registered in both Apps
+/// after their plugins (as a plugin added later would; taking Bevy's
+/// culling out when the plugin was built used to initialize `PostUpdate`
+/// first, so that none of its queries left such entities out), makes
+/// every query sparse, so no query of the plugin can be read table by
+/// table: it goes row by row through Bevy's iteration, with the same
+/// answers. Entities fall asleep (that component) and wake, and are
+/// disabled (Bevy's `Disabled`) and enabled, every frame; neither side sees
+/// them meanwhile. The scenes take both ways of deciding candidates (a
+/// pass over every entity, and look-ups), on one thread and on several.
+#[test]
+fn a_sparse_disabling_component_changes_no_answer() {
+    #[derive(Component)]
+    #[component(storage = "SparseSet")]
+    struct Asleep;
+    for (seed, spread, parallel) in [(21, 100.0, true), (22, 100.0, false), (23, 2_000.0, true)] {
+        let mut twins = Twins::new(seed);
+        twins.spread = spread;
+        twins.both(|world, _, _| world.register_disabling_component::<Asleep>());
+        twins.ours.insert_resource(BevyVisibilitySettings {
+            parallel,
+            ..Default::default()
+        });
+        for _ in 0..3_000 {
+            twins.spawn_entity();
+        }
+        for kind in [0, 1, 2] {
+            twins.spawn_camera(kind);
+        }
+        let mut seen = 0;
+        for frame in 0..20 {
+            for _ in 0..30 {
+                let pair = twins.entities[twins.rng.below(twins.entities.len())];
+                let action = twins.rng.below(4);
+                twins.both(|world, _, side| {
+                    let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
+                        return;
+                    };
+                    match action {
+                        0 => entity.insert(Asleep),
+                        1 => entity.remove::<Asleep>(),
+                        2 => entity.insert(Disabled),
+                        _ => entity.remove::<Disabled>(),
+                    };
+                });
+            }
+            twins.update();
+            seen += twins.check(frame);
+            twins.mutate();
+        }
+        assert!(seen > 200, "seed {seed}: {seen} seen in 20 frames");
+    }
+}
+
+/// An entity whose `Mesh3d` was removed and inserted again names its
+/// visibility class twice (Bevy's hook pushes it again), and Bevy lists it
+/// twice in the camera's list: so does the index, on both ways of deciding.
+#[test]
+fn a_class_named_twice_is_listed_twice_as_bevy_lists_it() {
+    for spread in [100.0, 2_000.0] {
+        let mut twins = Twins::new(31);
+        twins.spread = spread;
+        for _ in 0..3_000 {
+            twins.spawn_entity();
+        }
+        twins.spawn_camera(0);
+        for pair in twins.entities.clone().iter().step_by(3) {
+            twins.both(|world, _, side| {
+                let mut entity = world.entity_mut(pair[side]);
+                if entity.take::<Mesh3d>().is_some() {
+                    entity.insert(Mesh3d::default());
+                }
+            });
+        }
+        for frame in 0..5 {
+            twins.update();
+            twins.check(frame);
+            twins.mutate();
+        }
+        let camera = twins.cameras[0][0];
+        let list = twins
+            .bevy
+            .world()
+            .get::<VisibleEntities>(camera)
+            .unwrap()
+            .get(TypeId::of::<Mesh3d>());
+        let twice = list.windows(2).filter(|w| w[0] == w[1]).count();
+        assert!(twice > 0, "spread {spread}: Bevy lists some entity twice");
+    }
+}
+
+/// `rows::set_visible` writes `ViewVisibility`'s change ticks as Bevy's
+/// `set_visible` does, which also updates a column's summary tick where the
+/// component keeps one: `ViewVisibility` keeps none.
+#[test]
+fn view_visibility_keeps_no_summary_tick() {
+    let mut world = World::new();
+    let id = world.register_component::<ViewVisibility>();
+    let info = world.components().get_info(id).unwrap();
+    assert!(!info.summary_tick());
 }

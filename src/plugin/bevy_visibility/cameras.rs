@@ -19,7 +19,7 @@ use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
 use super::radix;
-use super::rows::{RowAt, RowData, decide_proven_by_rows};
+use super::rows::{RowData, RowScratch, decide_proven_by_rows};
 use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::diagnostics::DiagnosticsSink;
@@ -120,8 +120,8 @@ pub(super) struct Scratch {
     one_by_one: Vec<Entity>,
     /// Per thread of the pass in storage order, what each view saw.
     seen: Parallel<Vec<Seen>>,
-    /// The candidates' rows, for the look-ups by row.
-    located: Vec<RowAt>,
+    /// The look-ups by row's buffers.
+    rows: RowScratch,
     /// Working space of the candidates' sort.
     sort_spare: Vec<(Entity, bool)>,
 }
@@ -197,6 +197,10 @@ pub(super) fn check_visibility_from_index(
     let mut one_by_one = std::mem::take(&mut scratch.one_by_one);
     one_by_one.clear();
     one_by_one.extend(outside_the_tree.iter().chain(index.unindexed()));
+    // Each once, whichever way it came: a visible entity is listed once per
+    // visibility class it names, as in Bevy's lists.
+    one_by_one.sort_unstable();
+    one_by_one.dedup();
     let any_all = views.iter().any(|v| v.sight.no_culling);
     // A pass over every entity costs a few nanoseconds per entity; a look-up
     // by `Entity` some tens per candidate.
@@ -216,9 +220,10 @@ pub(super) fn check_visibility_from_index(
     } else {
         for view in &mut views {
             let mut candidates = std::mem::take(&mut view.candidates);
-            // In `Entity` order, which Bevy's lists are kept in and which
-            // follows storage order where entities were spawned together:
-            // neighbouring look-ups share cache lines and pages.
+            // In `Entity` order (by generation, then by index from the
+            // highest down), which Bevy's lists are kept in and which
+            // follows storage order backwards where entities were spawned
+            // together: neighbouring look-ups share cache lines and pages.
             radix::sort_by_key(&mut candidates, &mut scratch.sort_spare, |c| c.0.to_bits());
             decide_proven_by_rows(
                 &mut entities.p1(),
@@ -226,7 +231,7 @@ pub(super) fn check_visibility_from_index(
                 &view.sight,
                 &mut view.visible,
                 &candidates,
-                &mut scratch.located,
+                &mut scratch.rows,
                 ranges,
             );
             let mut culled = entities.p0();
@@ -254,7 +259,6 @@ pub(super) fn check_visibility_from_index(
             // sort, because it merges runs already in order: the walk in
             // storage order gives one per thread's batch.
             list.sort();
-            list.dedup();
             std::mem::swap(visible.get_mut(*class), list);
         }
     }
@@ -318,7 +322,7 @@ fn cull_views(
 /// Bevy's own decision for one entity and one view, as its culling system
 /// makes it; `proven` skips the frustum tests for an entity the tree has
 /// shown to lie inside every plane they test.
-fn decide(
+pub(super) fn decide(
     sight: &Sight,
     seen: &mut Seen,
     item: &mut CulledItem<'_, '_>,

@@ -25,7 +25,7 @@ use bevy_camera::visibility::{
     VisibilitySystems, check_visibility_cpu_culling, check_visibility_ranges,
 };
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
+use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel, Schedules};
 use bevy_transform::TransformSystems;
 
 use super::index::SpatialIndex;
@@ -72,7 +72,8 @@ pub struct Renderable;
 
 /// Serves Bevy's camera visibility from the index: add it with (after)
 /// [`SpatialIndexPlugin`](super::SpatialIndexPlugin), in an app with Bevy's `CameraPlugin` (part of
-/// `DefaultPlugins`).
+/// `DefaultPlugins`, before or after this plugin). Bevy's systems it
+/// replaces are taken out as the app starts (in `PreStartup`).
 ///
 /// It indexes Bevy's renderables in the layer [`Renderable`] and replaces
 /// Bevy's `check_visibility_cpu_culling` with a system in the same set,
@@ -92,7 +93,7 @@ pub struct Renderable;
 /// use bevy_rtree::plugin::{BevyVisibilityPlugin, SpatialIndexPlugin};
 ///
 /// let mut app = App::new();
-/// // After DefaultPlugins (or CameraPlugin) in a real game.
+/// // With DefaultPlugins (or CameraPlugin) in a real game.
 /// app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
 /// ```
 #[derive(Clone, Copy, Debug, Default)]
@@ -192,7 +193,12 @@ impl Plugin for BevyVisibilityPlugin {
                         .in_set(VisibilitySystems::CheckVisibility)
                         // Where Bevy orders its own: after this frame's
                         // visibility ranges.
-                        .after(check_visibility_ranges),
+                        .after(check_visibility_ranges)
+                        // Ordered after Bevy's own until that is taken out
+                        // as the app starts: taking it out initializes the
+                        // schedule, which an app that makes ambiguities
+                        // errors would otherwise refuse.
+                        .after(check_visibility_cpu_culling),
                 ),
             );
         if config.schedule == PostUpdate.intern() {
@@ -211,49 +217,44 @@ impl Plugin for BevyVisibilityPlugin {
         }
         sync::add_observers(app);
         super::register_layer_queries::<Renderable>(app, &config);
-        // Added after Bevy's CameraPlugin, as documented: Bevy's system is
-        // there to take out now, so that an app driven by `update()` alone
-        // (a headless test) runs without it too.
-        let taken_out = take_out_bevy_culling(app);
-        app.insert_resource(BevyCullingTakenOut(taken_out));
+        // Bevy's systems this one replaces are taken out as the app starts,
+        // not here: taking a system out initializes its schedule, and every
+        // query of a schedule initialized now would miss a disabling
+        // component that a plugin added after this one registers (Bevy
+        // asks for them before the app starts, which this would bring
+        // forward). At the start, Bevy's plugins are there whether they
+        // were added before or after this one.
+        app.add_systems(PreStartup, take_out_bevy_systems);
         #[cfg(feature = "bevy_light")]
         add_light_visibility(app);
     }
-
-    fn finish(&self, app: &mut App) {
-        // Again once every plugin is built, in case Bevy's was added after
-        // this one.
-        let taken_out = take_out_bevy_culling(app);
-        #[cfg(feature = "bevy_light")]
-        take_out_bevy_light_visibility(app);
-        let Some(mut done) = app.world_mut().get_resource_mut::<BevyCullingTakenOut>() else {
-            return;
-        };
-        done.0 |= taken_out;
-        if !done.0 {
-            log::warn!(
-                "BevyVisibilityPlugin: Bevy's check_visibility_cpu_culling was not found \
-                 (is CameraPlugin or DefaultPlugins in the app?); the index serves \
-                 visibility alone"
-            );
-        }
-    }
 }
 
-/// Whether Bevy's `check_visibility_cpu_culling` has been taken out of the
-/// app.
-#[derive(Resource)]
-struct BevyCullingTakenOut(bool);
-
-/// Takes Bevy's `check_visibility_cpu_culling` out of `PostUpdate`; whether
-/// there was one.
-fn take_out_bevy_culling(app: &mut App) -> bool {
-    let removed = app.remove_systems_in_set(
-        PostUpdate,
-        check_visibility_cpu_culling,
-        ScheduleCleanupPolicy::RemoveSystemsOnly,
-    );
-    matches!(removed, Ok(n) if n > 0)
+/// Takes out of `PostUpdate` Bevy's `check_visibility_cpu_culling` and,
+/// with feature `bevy_light`, bevy_light's `check_point_light_mesh_visibility`
+/// and `check_dir_light_mesh_visibility`: once, in `PreStartup`.
+fn take_out_bevy_systems(world: &mut World) {
+    let taken_out = world.resource_scope(|world, mut schedules: Mut<Schedules>| {
+        let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
+        #[cfg(feature = "bevy_light")]
+        {
+            use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
+            let point = check_point_light_mesh_visibility;
+            let _ = schedules.remove_systems_in_set(PostUpdate, point, world, policy);
+            let sun = check_dir_light_mesh_visibility;
+            let _ = schedules.remove_systems_in_set(PostUpdate, sun, world, policy);
+        }
+        let culling = check_visibility_cpu_culling;
+        let removed = schedules.remove_systems_in_set(PostUpdate, culling, world, policy);
+        matches!(removed, Ok(n) if n > 0)
+    });
+    if !taken_out {
+        log::warn!(
+            "BevyVisibilityPlugin: Bevy's check_visibility_cpu_culling was not found \
+             (is CameraPlugin or DefaultPlugins in the app?); the index serves \
+             visibility alone"
+        );
+    }
 }
 
 /// Serves bevy_light's shadow visibility from the index too (feature
@@ -275,15 +276,4 @@ fn add_light_visibility(app: &mut App) {
             .after(VisibilitySystems::CheckVisibility)
             .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
     );
-    take_out_bevy_light_visibility(app);
-}
-
-/// Takes bevy_light's two mesh visibility systems out of `PostUpdate`
-/// (where `LightPlugin` added them).
-#[cfg(feature = "bevy_light")]
-fn take_out_bevy_light_visibility(app: &mut App) {
-    use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
-    let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
-    let _ = app.remove_systems_in_set(PostUpdate, check_point_light_mesh_visibility, policy);
-    let _ = app.remove_systems_in_set(PostUpdate, check_dir_light_mesh_visibility, policy);
 }

@@ -1,9 +1,10 @@
 //! A radix sort for the cameras' candidates, in `Entity` order.
 //!
 //! A camera over a large map has tens of thousands of candidates, which
-//! come out of the tree in its own order; decided in entity order their
-//! look-ups walk Bevy's tables forwards, and the visible lists come out in
-//! the order Bevy hands them on. A comparison sort of 20,000 candidates
+//! come out of the tree in its own order; decided in `Entity` order their
+//! look-ups walk Bevy's tables in one direction (backwards, as that order
+//! runs down the indices of one generation), and the visible lists come
+//! out in the order Bevy hands them on. A comparison sort of 20,000 candidates
 //! took 0.3 ms of a 5 ms step; this sort takes a pass per byte of the key
 //! that is not the same in every item (three for a million entities of
 //! one generation).

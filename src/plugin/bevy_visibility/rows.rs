@@ -9,6 +9,9 @@
 //! another, were most of the camera's step. Here the locations are looked
 //! up in one pass of independent loads (the processor overlaps them), and
 //! each candidate's rows are asked for a few candidates ahead of its turn.
+//! Where Bevy's queries cannot be read by table (an app that registers a
+//! disabling component stored in a sparse set), the candidates go through
+//! `Query::get` as before.
 
 use std::panic::Location;
 
@@ -16,7 +19,7 @@ use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, RenderLayers, SetViewVisibility, ViewVisibility,
     VisibilityClass, VisibilityRange, VisibleEntityRanges,
 };
-use bevy_ecs::change_detection::{ContiguousComponentTicksMut, ContiguousMut, MaybeLocation};
+use bevy_ecs::change_detection::{ContiguousComponentTicksMut, ContiguousMut, MaybeLocation, Tick};
 use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::storage::TableId;
@@ -51,10 +54,23 @@ struct TableRows<'w> {
 /// Where a candidate's components are: its table among the query's, and
 /// its row.
 #[derive(Clone, Copy)]
-pub(super) struct RowAt {
+struct RowAt {
     table: u32,
     row: u32,
 }
+
+/// The look-ups' buffers, kept from frame to frame.
+#[derive(Default)]
+pub(super) struct RowScratch {
+    /// Per candidate, where its components are.
+    located: Vec<RowAt>,
+    /// Per `TableId`, the table's place among the query's tables (`NONE`
+    /// for tables the query does not read); reset after each use.
+    slots: Vec<u32>,
+}
+
+/// No table: a candidate that is not decided here.
+const NONE: u32 = u32::MAX;
 
 /// Decides the proven candidates among `candidates` (entity, proven) for
 /// one view through their rows: Bevy's checks other than the frustum tests
@@ -69,18 +85,27 @@ pub(super) fn decide_proven_by_rows(
     sight: &Sight,
     seen: &mut Seen,
     candidates: &[(Entity, bool)],
-    located: &mut Vec<RowAt>,
+    scratch: &mut RowScratch,
     ranges: Option<&VisibleEntityRanges>,
 ) {
     let Ok(chunks) = query.contiguous_iter_mut() else {
-        unreachable!("the decisions' query reads table components only")
+        // Every query of an app that registers a disabling component stored
+        // in a sparse set is sparse: the candidates go one by one.
+        decide_proven_one_by_one(query, sight, seen, candidates, ranges);
+        return;
     };
+    let RowScratch { located, slots } = scratch;
     let mut tables: Vec<TableRows<'_>> = Vec::new();
     for (ids, inherited, view, class, layers, has_range) in chunks {
         let Some(&first) = ids.first() else { continue };
         let Ok(at) = entities.get_spawned(first) else {
             continue;
         };
+        let id = at.table_id.as_u32() as usize;
+        if slots.len() <= id {
+            slots.resize(id + 1, NONE);
+        }
+        slots[id] = tables.len() as u32;
         let (view, ticks) = ContiguousMut::bypass_change_detection_split(view);
         tables.push(TableRows {
             table: at.table_id,
@@ -94,25 +119,24 @@ pub(super) fn decide_proven_by_rows(
     }
     // The locations first, in a loop whose loads do not wait on each other.
     located.clear();
-    let mut last = 0u32;
-    for &(entity, proven) in candidates {
-        let found = if proven {
-            entities.get_spawned(entity).ok().and_then(|at| {
-                if tables.get(last as usize)?.table != at.table_id {
-                    last = tables.iter().position(|t| t.table == at.table_id)? as u32;
-                }
-                Some(RowAt {
-                    table: last,
-                    row: at.table_row.index_u32(),
-                })
-            })
-        } else {
-            None
-        };
-        located.push(found.unwrap_or(RowAt {
-            table: u32::MAX,
-            row: 0,
-        }));
+    located.extend(candidates.iter().map(|&(entity, proven)| {
+        let at = proven.then(|| entities.get_spawned(entity).ok()).flatten();
+        at.map_or(
+            RowAt {
+                table: NONE,
+                row: 0,
+            },
+            |at| RowAt {
+                table: slots
+                    .get(at.table_id.as_u32() as usize)
+                    .copied()
+                    .unwrap_or(NONE),
+                row: at.table_row.index_u32(),
+            },
+        )
+    }));
+    for table in &tables {
+        slots[table.table.as_u32() as usize] = NONE;
     }
     for (i, (&(entity, _), &at)) in candidates.iter().zip(located.iter()).enumerate() {
         if let Some(&ahead) = located.get(i + LOOK_AHEAD)
@@ -149,6 +173,32 @@ pub(super) fn decide_proven_by_rows(
     }
 }
 
+/// [`decide_proven_by_rows`] through `Query::get`, for a query that cannot
+/// be read by table.
+fn decide_proven_one_by_one(
+    query: &mut Query<RowData<'_>, Without<NoCpuCulling>>,
+    sight: &Sight,
+    seen: &mut Seen,
+    candidates: &[(Entity, bool)],
+    ranges: Option<&VisibleEntityRanges>,
+) {
+    for &(entity, proven) in candidates {
+        if !proven {
+            continue;
+        }
+        let Ok((entity, inherited, mut view, class, mask, has_range)) = query.get_mut(entity)
+        else {
+            continue;
+        };
+        if may_be_seen(sight, entity, inherited, mask, has_range, ranges) {
+            view.set_visible();
+            for &id in class.into_iter().flat_map(|class| class.iter()) {
+                seen.push(entity, id);
+            }
+        }
+    }
+}
+
 /// Bevy's `set_visible` on one row of a `ViewVisibility` column: the value
 /// changed as Bevy changes it, and the row's change tick (and caller, where
 /// Bevy tracks it) written exactly when Bevy's would be.
@@ -159,11 +209,12 @@ pub(super) fn set_visible(
 ) {
     let (last_run, this_run) = (ticks.last_run(), ticks.this_run());
     let mut value = view[row];
-    // `set_visible` reads neither tick: they only tell afterwards whether
-    // it marked the value changed (a tick no newer than `last_run` becomes
-    // `this_run`).
-    let mut added = last_run;
-    let mut changed = last_run;
+    // `set_visible` reads neither tick; the copy's changed tick becomes
+    // `this_run` exactly when it marks the value changed. (The column has
+    // no summary tick for it to update: `ViewVisibility` keeps none, which
+    // a test checks.)
+    let mut added = this_run;
+    let mut changed = Tick::new(this_run.get().wrapping_sub(1));
     let mut caller = Location::caller();
     let mut visibility = Mut::new(
         &mut value,
@@ -175,7 +226,7 @@ pub(super) fn set_visible(
         MaybeLocation::new_with(|| &mut caller),
     );
     visibility.set_visible();
-    let marked = visibility.is_changed();
+    let marked = changed == this_run;
     view[row] = value;
     if marked {
         ticks.changed_mut()[row] = this_run;

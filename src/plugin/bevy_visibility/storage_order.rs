@@ -6,19 +6,42 @@
 //! The walk reads the columns a contiguous query hands over once per table
 //! (or per batch, on several threads), so a row no view marked costs the
 //! read of its entity and its marks, not a binding of every term of
-//! Bevy's query to the row.
+//! Bevy's query to the row. Where Bevy's queries cannot be read by table
+//! (an app that registers a disabling component stored in a sparse set),
+//! the walk goes through Bevy's own iteration, row by row.
 
 use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
 use bevy_ecs::change_detection::ContiguousMut;
 use bevy_ecs::prelude::*;
-use bevy_ecs::query::ContiguousQueryData;
+use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_utils::Parallel;
 
-use super::cameras::{Culled, Seen, Sight, View, may_be_seen, passes_frustum};
+use super::cameras::{Culled, Seen, Sight, View, decide, may_be_seen, passes_frustum};
 use super::rows::set_visible;
 
 /// One table's (or batch's) columns of [`Culled`].
 type Columns<'w, 's> = <Culled<'static> as ContiguousQueryData>::Contiguous<'w, 's>;
+
+/// One entity's row of [`Culled`].
+type CulledItem<'w, 's> = <Culled<'static> as QueryData>::Item<'w, 's>;
+
+/// An entity's mark for a view: the view has it as a candidate.
+const CANDIDATE: u16 = 0b01;
+/// An entity's mark for a view: the tree proved it inside every plane.
+const PROVEN: u16 = 0b10;
+
+/// The views of a pass marked in `bits` (two per view), each with whether
+/// it proved the entity inside.
+fn views_marked(mut bits: u16) -> impl Iterator<Item = (usize, bool)> {
+    std::iter::from_fn(move || {
+        (bits != 0).then(|| {
+            let v = bits.trailing_zeros() as usize / 2;
+            let proven = bits >> (2 * v) & PROVEN != 0;
+            bits &= !(0b11 << (2 * v));
+            (v, proven)
+        })
+    })
+}
 
 /// Decides the views of one pass together, walking the entities in
 /// storage order and testing each against the views that have it as a
@@ -40,8 +63,6 @@ pub(super) fn decide_in_storage_order(
     seen: &mut Parallel<Vec<Seen>>,
     parallel: bool,
 ) {
-    const CANDIDATE: u16 = 0b01;
-    const PROVEN: u16 = 0b10;
     let mut mark = |entity: Entity, bits: u16| {
         let at = entity.index_u32() as usize;
         if marks.len() <= at {
@@ -71,17 +92,18 @@ pub(super) fn decide_in_storage_order(
         .collect();
     let sights: Vec<&Sight> = views.iter().map(|v| &v.sight).collect();
     let marks_read: &[u16] = marks;
+    let marks_of = |entity: Entity| {
+        all | marks_read
+            .get(entity.index_u32() as usize)
+            .copied()
+            .unwrap_or(0)
+    };
     let walk = |lists: &mut Vec<Seen>, columns: Columns<'_, '_>| {
         let (ids, inherited, view, class, layers, aabbs, spheres, transforms, unculled, has_range) =
             columns;
         let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(view);
         for (row, &entity) in ids.iter().enumerate() {
-            let at = entity.index_u32() as usize;
-            let mut bits = all | marks_read.get(at).copied().unwrap_or(0);
-            while bits != 0 {
-                let v = bits.trailing_zeros() as usize / 2;
-                let proven = bits >> (2 * v) & PROVEN != 0;
-                bits &= !(0b11 << (2 * v));
+            for (v, proven) in views_marked(marks_of(entity)) {
                 let sight = sights[v];
                 let mask = layers.map(|layers| &layers[row]);
                 if !may_be_seen(sight, entity, &inherited[row], mask, has_range, ranges) {
@@ -101,18 +123,26 @@ pub(super) fn decide_in_storage_order(
             }
         }
     };
+    // Where the query cannot be read by table (a disabling component the
+    // app registered is stored in a sparse set, which makes every query
+    // sparse), the walk goes entity by entity through Bevy's iteration.
+    let walk_items = |lists: &mut Vec<Seen>, mut item: CulledItem<'_, '_>| {
+        for (v, proven) in views_marked(marks_of(item.0)) {
+            decide(sights[v], &mut lists[v], &mut item, proven, ranges);
+        }
+    };
     if parallel {
-        let Ok(batches) = culled.contiguous_par_iter_mut() else {
-            unreachable!("Bevy's culling query reads table components only")
+        let lists = || {
+            let mut lists = seen.borrow_local_mut();
+            lists.resize_with(sights.len(), Seen::default);
+            lists
         };
-        batches.for_each_init(
-            || {
-                let mut lists = seen.borrow_local_mut();
-                lists.resize_with(sights.len(), Seen::default);
-                lists
-            },
-            |lists, columns| walk(lists, columns),
-        );
+        match culled.contiguous_par_iter_mut() {
+            Ok(batches) => batches.for_each_init(lists, |lists, columns| walk(lists, columns)),
+            Err(_) => culled
+                .par_iter_mut()
+                .for_each_init(lists, |lists, item| walk_items(lists, item)),
+        }
         for local in seen.iter_mut() {
             for (mine, list) in visible.iter_mut().zip(local.iter_mut()) {
                 mine.take_from(list);
@@ -120,10 +150,12 @@ pub(super) fn decide_in_storage_order(
         }
     } else {
         // One thread: straight into the views' lists.
-        let Ok(tables) = culled.contiguous_iter_mut() else {
-            unreachable!("Bevy's culling query reads table components only")
-        };
-        tables.for_each(|columns| walk(&mut visible, columns));
+        match culled.contiguous_iter_mut() {
+            Ok(tables) => tables.for_each(|columns| walk(&mut visible, columns)),
+            Err(_) => culled
+                .iter_mut()
+                .for_each(|item| walk_items(&mut visible, item)),
+        }
     }
     for (view, list) in views.iter_mut().zip(visible) {
         view.visible = list;

@@ -9,7 +9,7 @@ use bevy_camera::visibility::{
 use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
 use bevy_ecs::event::EventPattern;
 use bevy_ecs::prelude::*;
-use bevy_ecs::query::ContiguousQueryData;
+use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_transform::prelude::GlobalTransform;
 use bevy_utils::Parallel;
 use glam::Vec3;
@@ -147,22 +147,25 @@ pub(super) fn sync_renderables(
     } = &mut *scratch;
     boxes.clear();
     let scanned = renderables.p0();
+    // Read table by table where the query can be (every query of an app
+    // that registers a disabling component stored in a sparse set cannot
+    // be, and goes row by row through Bevy's iteration).
     if settings.on_several_threads() {
         // The scan of the change ticks and the world boxes on every thread;
         // the tree's writes stay on this one.
-        let Ok(tables) = scanned.contiguous_par_iter() else {
-            unreachable!("the sync's query reads table components only")
-        };
-        tables.for_each_init(
-            || per_thread.borrow_local_mut(),
-            |local, table| scan_table(table, local),
-        );
+        let local = || per_thread.borrow_local_mut();
+        match scanned.contiguous_par_iter() {
+            Ok(tables) => tables.for_each_init(local, |local, table| scan_table(table, local)),
+            Err(_) => scanned
+                .par_iter()
+                .for_each_init(local, |local, item| scan_row(item, local)),
+        }
         per_thread.iter_mut().for_each(|local| boxes.append(local));
     } else {
-        let Ok(tables) = scanned.contiguous_iter() else {
-            unreachable!("the sync's query reads table components only")
-        };
-        tables.for_each(|table| scan_table(table, boxes));
+        match scanned.contiguous_iter() {
+            Ok(tables) => tables.for_each(|table| scan_table(table, boxes)),
+            Err(_) => scanned.iter().for_each(|item| scan_row(item, boxes)),
+        }
     }
     index::apply_changes(&mut index, boxes.drain(..).chain(again), sync, &sink, true);
     let mut handles = renderables.p1();
@@ -215,6 +218,19 @@ fn scan_table(
                 out.push((ids[row], world_box(&aabbs[row], &transforms[row]), kept));
             }
         }
+    }
+}
+
+/// [`scan_table`] for one row, through Bevy's iteration: its world box if
+/// its box or transform changed since the system's last run.
+fn scan_row(item: <Scanned<'_> as QueryData>::Item<'_, '_>, out: &mut Vec<ChangedBox>) {
+    let (entity, aabb, transform, handle) = item;
+    if aabb.is_changed() || transform.is_changed() {
+        out.push((
+            entity,
+            world_box(&aabb, &transform),
+            handle.and_then(|h| h.0),
+        ));
     }
 }
 
