@@ -174,6 +174,35 @@ fn opting_out_and_back_in() {
     assert_eq!(indexed(&app), sorted([a, b]));
 }
 
+/// Bevy's `Disabled` takes an entity out of every index at once, as it
+/// takes it out of every query, and enabling it puts it back on the next
+/// update; an entity spawned disabled is indexed once enabled.
+#[test]
+fn disabled_entities_leave_every_index_and_come_back_enabled() {
+    use bevy_ecs::entity_disabling::Disabled;
+    let mut app = app();
+    app.add_spatial_layer::<Enemy>();
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let other = app.world_mut().spawn(unit_at(2.0)).id();
+    app.update();
+    assert_eq!(indexed(&app), sorted([enemy, other]));
+    app.world_mut().entity_mut(enemy).insert(Disabled);
+    assert_eq!(indexed(&app), [other], "leaving is immediate");
+    assert_eq!(indexed_in::<Enemy>(&app), []);
+    app.update();
+    assert_eq!(indexed(&app), [other], "a sync does not bring it back");
+    app.world_mut().entity_mut(enemy).remove::<Disabled>();
+    app.update();
+    assert_eq!(indexed(&app), sorted([enemy, other]));
+    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+    let asleep = app.world_mut().spawn((unit_at(4.0), Enemy, Disabled)).id();
+    app.update();
+    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+    app.world_mut().entity_mut(asleep).remove::<Disabled>();
+    app.update();
+    assert_eq!(indexed_in::<Enemy>(&app), sorted([enemy, asleep]));
+}
+
 #[test]
 fn layers_hold_only_their_marked_entities() {
     let mut app = app();

@@ -74,7 +74,9 @@ mod raycast;
 mod transform;
 
 use bevy_app::prelude::*;
+use bevy_ecs::entity_disabling::Disabled;
 use bevy_ecs::prelude::*;
+use bevy_ecs::query::Allow;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 
 #[cfg(feature = "bevy_camera")]
@@ -240,7 +242,8 @@ impl Plugin for SpatialIndexPlugin {
                 .chain(),
         )
         .add_systems(Last, diagnostics::publish_diagnostics)
-        .add_observer(opt_back_in);
+        .add_observer(opt_back_in)
+        .add_observer(enabled_again);
         if self.schedule == PostUpdate.intern() {
             // The boxes of entities spawned at startup are indexed before
             // the first frame, so that the first frame's queries see them.
@@ -366,6 +369,14 @@ impl SpatialAppExt for App {
              sink: Res<DiagnosticsSink>| {
                 index::remove_from_layer(event.entity, &mut index, &sink);
             },
+        )
+        .add_observer(
+            // Bevy's queries leave a disabled entity out; so do the indexes.
+            |event: On<Add<Disabled>>,
+             mut index: ResMut<SpatialIndex<L>>,
+             sink: Res<DiagnosticsSink>| {
+                index::remove_from_layer(event.entity, &mut index, &sink);
+            },
         );
         if !index::is_main_layer::<L>() {
             self.add_observer(
@@ -458,6 +469,18 @@ pub(crate) fn layer_must_be_registered<L: Component>(
 /// Observer: an entity that drops its opt-out marker is put back on the next
 /// sync, by marking its box as changed.
 fn opt_back_in(event: On<Remove<NoSpatialIndex>>, mut bounds: Query<&mut SpatialBounds>) {
+    if let Ok(mut bounds) = bounds.get_mut(event.entity) {
+        bounds.set_changed();
+    }
+}
+
+/// Observer: an entity enabled again (Bevy's `Disabled` removed) is put
+/// back on the next sync, by marking its box as changed. It is still
+/// disabled while the observer runs, hence `Allow<Disabled>`.
+fn enabled_again(
+    event: On<Remove<Disabled>>,
+    mut bounds: Query<&mut SpatialBounds, Allow<Disabled>>,
+) {
     if let Ok(mut bounds) = bounds.get_mut(event.entity) {
         bounds.set_changed();
     }

@@ -7,6 +7,7 @@ use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, NoFrustumCulling, ViewVisibility,
 };
 use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
+use bevy_ecs::entity_disabling::Disabled;
 use bevy_ecs::event::EventPattern;
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::{ContiguousQueryData, QueryData};
@@ -235,8 +236,9 @@ fn scan_row(item: <Scanned<'_> as QueryData>::Item<'_, '_>, out: &mut Vec<Change
 }
 
 /// Observers: an entity leaves the index when it loses what Bevy's culling
-/// needs (its box, its transform, its visibility components) or gains an
-/// opt-out marker, and is read again when it loses the marker.
+/// needs (its box, its transform, its visibility components), gains an
+/// opt-out marker or is disabled (Bevy's `Disabled`), and is read again when
+/// it loses the marker or is enabled.
 pub(super) fn add_observers(app: &mut bevy_app::App) {
     app.add_observer(leave::<Remove<BevyAabb>>)
         .add_observer(leave::<Remove<GlobalTransform>>)
@@ -245,7 +247,9 @@ pub(super) fn add_observers(app: &mut bevy_app::App) {
         .add_observer(leave::<Add<NoCpuCulling>>)
         .add_observer(leave::<Add<NoFrustumCulling>>)
         .add_observer(come_back::<Remove<NoCpuCulling>>)
-        .add_observer(come_back::<Remove<NoFrustumCulling>>);
+        .add_observer(come_back::<Remove<NoFrustumCulling>>)
+        .add_observer(leave::<Add<Disabled>>)
+        .add_observer(come_back::<Remove<Disabled>>);
 }
 
 fn leave<P: EventPattern>(
