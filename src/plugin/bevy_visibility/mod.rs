@@ -25,7 +25,7 @@ use bevy_camera::visibility::{
     VisibilitySystems, check_visibility_cpu_culling, check_visibility_ranges,
 };
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel, Schedules};
+use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
 use bevy_transform::TransformSystems;
 
 use super::index::SpatialIndex;
@@ -234,20 +234,21 @@ impl Plugin for BevyVisibilityPlugin {
 /// with feature `bevy_light`, bevy_light's `check_point_light_mesh_visibility`
 /// and `check_dir_light_mesh_visibility`: once, in `PreStartup`.
 fn take_out_bevy_systems(world: &mut World) {
-    let taken_out = world.resource_scope(|world, mut schedules: Mut<Schedules>| {
+    // The schedule is taken out of `Schedules` while it changes (not the
+    // whole `Schedules`: initializing a schedule reads it).
+    let taken_out = world.try_schedule_scope(PostUpdate, |world, schedule| {
         let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
         #[cfg(feature = "bevy_light")]
         {
             use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
-            let point = check_point_light_mesh_visibility;
-            let _ = schedules.remove_systems_in_set(PostUpdate, point, world, policy);
-            let sun = check_dir_light_mesh_visibility;
-            let _ = schedules.remove_systems_in_set(PostUpdate, sun, world, policy);
+            let _ =
+                schedule.remove_systems_in_set(check_point_light_mesh_visibility, world, policy);
+            let _ = schedule.remove_systems_in_set(check_dir_light_mesh_visibility, world, policy);
         }
-        let culling = check_visibility_cpu_culling;
-        let removed = schedules.remove_systems_in_set(PostUpdate, culling, world, policy);
+        let removed = schedule.remove_systems_in_set(check_visibility_cpu_culling, world, policy);
         matches!(removed, Ok(n) if n > 0)
     });
+    let taken_out = taken_out.unwrap_or(false);
     if !taken_out {
         log::warn!(
             "BevyVisibilityPlugin: Bevy's check_visibility_cpu_culling was not found \
