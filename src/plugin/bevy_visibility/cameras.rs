@@ -19,7 +19,7 @@ use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
 use super::radix;
-use super::rows::{RowData, RowScratch, decide_proven_by_rows};
+use super::rows::{RowScratch, decide_proven_by_rows};
 use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::diagnostics::DiagnosticsSink;
@@ -145,10 +145,7 @@ pub(super) fn check_visibility_from_index(
         Has<NoCpuCulling>,
         Option<&GlobalTransform>,
     )>,
-    mut entities: ParamSet<(
-        Query<Culled<'_>, Without<NoCpuCulling>>,
-        Query<RowData<'_>, Without<NoCpuCulling>>,
-    )>,
+    mut culled: Query<Culled<'_>, Without<NoCpuCulling>>,
     bevy_entities: &Entities,
     outside_the_tree: Query<Entity, OutsideTheTree>,
     index: Res<SpatialIndex<Renderable>>,
@@ -192,7 +189,7 @@ pub(super) fn check_visibility_from_index(
             view.proven = 0;
         }
     }
-    let count = entities.p0().iter().len();
+    let count = culled.iter().len();
     let candidates: usize = views.iter().map(|v| v.candidates.len()).sum();
     let mut one_by_one = std::mem::take(&mut scratch.one_by_one);
     one_by_one.clear();
@@ -205,7 +202,6 @@ pub(super) fn check_visibility_from_index(
     // A pass over every entity costs a few nanoseconds per entity; a look-up
     // by `Entity` some tens per candidate.
     if any_all || candidates * 8 > count {
-        let mut culled = entities.p0();
         for pass in views.chunks_mut(VIEWS_PER_PASS) {
             decide_in_storage_order(
                 pass,
@@ -226,7 +222,7 @@ pub(super) fn check_visibility_from_index(
             // together: neighbouring look-ups share cache lines and pages.
             radix::sort_by_key(&mut candidates, &mut scratch.sort_spare, |c| c.0.to_bits());
             decide_proven_by_rows(
-                &mut entities.p1(),
+                &mut culled,
                 bevy_entities,
                 &view.sight,
                 &mut view.visible,
@@ -234,7 +230,6 @@ pub(super) fn check_visibility_from_index(
                 &mut scratch.rows,
                 ranges,
             );
-            let mut culled = entities.p0();
             for &(entity, inside) in &candidates {
                 if !inside && let Ok(mut item) = culled.get_mut(entity) {
                     decide(&view.sight, &mut view.visible, &mut item, false, ranges);

@@ -17,30 +17,21 @@ use std::panic::Location;
 
 use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, RenderLayers, SetViewVisibility, ViewVisibility,
-    VisibilityClass, VisibilityRange, VisibleEntityRanges,
+    VisibilityClass, VisibleEntityRanges,
 };
 use bevy_ecs::change_detection::{ContiguousComponentTicksMut, ContiguousMut, MaybeLocation, Tick};
 use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::storage::TableId;
 
-use super::cameras::{Seen, Sight, may_be_seen};
+use super::cameras::{Culled, Seen, Sight, decide, may_be_seen};
 use crate::tree::prefetch::prefetch_lines;
-
-/// What a proven candidate's decision reads and writes, per table.
-pub(super) type RowData<'a> = (
-    Entity,
-    &'a InheritedVisibility,
-    &'a mut ViewVisibility,
-    Option<&'a VisibilityClass>,
-    Option<&'a RenderLayers>,
-    Has<VisibilityRange>,
-);
 
 /// How many candidates ahead of the one decided its rows are asked for.
 const LOOK_AHEAD: usize = 8;
 
-/// One table's columns of [`RowData`].
+/// One table's columns of what a proven candidate's decision reads and
+/// writes (of Bevy's culling query, [`Culled`]).
 struct TableRows<'w> {
     table: TableId,
     inherited: &'w [InheritedVisibility],
@@ -80,7 +71,7 @@ const NONE: u32 = u32::MAX;
 /// longer spawned, or not in the query's tables, is skipped, as a failed
 /// `Query::get` skips it.
 pub(super) fn decide_proven_by_rows(
-    query: &mut Query<RowData<'_>, Without<NoCpuCulling>>,
+    query: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
     entities: &Entities,
     sight: &Sight,
     seen: &mut Seen,
@@ -96,7 +87,7 @@ pub(super) fn decide_proven_by_rows(
     };
     let RowScratch { located, slots } = scratch;
     let mut tables: Vec<TableRows<'_>> = Vec::new();
-    for (ids, inherited, view, class, layers, has_range) in chunks {
+    for (ids, inherited, view, class, layers, .., has_range) in chunks {
         let Some(&first) = ids.first() else { continue };
         let Ok(at) = entities.get_spawned(first) else {
             continue;
@@ -176,25 +167,15 @@ pub(super) fn decide_proven_by_rows(
 /// [`decide_proven_by_rows`] through `Query::get`, for a query that cannot
 /// be read by table.
 fn decide_proven_one_by_one(
-    query: &mut Query<RowData<'_>, Without<NoCpuCulling>>,
+    query: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
     sight: &Sight,
     seen: &mut Seen,
     candidates: &[(Entity, bool)],
     ranges: Option<&VisibleEntityRanges>,
 ) {
     for &(entity, proven) in candidates {
-        if !proven {
-            continue;
-        }
-        let Ok((entity, inherited, mut view, class, mask, has_range)) = query.get_mut(entity)
-        else {
-            continue;
-        };
-        if may_be_seen(sight, entity, inherited, mask, has_range, ranges) {
-            view.set_visible();
-            for &id in class.into_iter().flat_map(|class| class.iter()) {
-                seen.push(entity, id);
-            }
+        if proven && let Ok(mut item) = query.get_mut(entity) {
+            decide(sight, seen, &mut item, true, ranges);
         }
     }
 }
