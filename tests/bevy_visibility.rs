@@ -629,7 +629,7 @@ fn a_class_named_twice_is_listed_twice_as_bevy_lists_it() {
     }
 }
 
-/// `rows::set_visible` writes `ViewVisibility`'s change ticks as Bevy's
+/// `CulledColumns::set_visible` writes `ViewVisibility`'s change ticks as Bevy's
 /// `set_visible` does, which also updates a column's summary tick where the
 /// component keeps one: `ViewVisibility` keeps none.
 #[test]

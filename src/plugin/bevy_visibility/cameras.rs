@@ -54,7 +54,7 @@ type OutsideTheTree = (
 
 /// Cameras decided in one pass over the entities (two bits each in a
 /// `u16` per entity: candidate, and proven inside).
-pub(super) const VIEWS_PER_PASS: usize = 8;
+const VIEWS_PER_PASS: usize = 8;
 
 /// What Bevy's tests read of one active camera.
 pub(super) struct Sight {

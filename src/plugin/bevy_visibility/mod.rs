@@ -9,6 +9,7 @@
 //! camera's `VisibleEntities` come out as Bevy's own system makes them.
 
 mod cameras;
+mod columns;
 mod frustum_candidates;
 #[cfg(feature = "bevy_light")]
 mod lights;

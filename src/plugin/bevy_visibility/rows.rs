@@ -13,34 +13,16 @@
 //! disabling component stored in a sparse set), the candidates go through
 //! `Query::get` as before.
 
-use std::panic::Location;
-
-use bevy_camera::visibility::{
-    InheritedVisibility, NoCpuCulling, RenderLayers, SetViewVisibility, ViewVisibility,
-    VisibilityClass, VisibleEntityRanges,
-};
-use bevy_ecs::change_detection::{ContiguousComponentTicksMut, ContiguousMut, MaybeLocation, Tick};
+use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
 use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::storage::TableId;
 
-use super::cameras::{Culled, Seen, Sight, decide, may_be_seen};
-use crate::tree::prefetch::prefetch_lines;
+use super::cameras::{Culled, Seen, Sight, decide};
+use super::columns::CulledColumns;
 
 /// How many candidates ahead of the one decided its rows are asked for.
 const LOOK_AHEAD: usize = 8;
-
-/// One table's columns of what a proven candidate's decision reads and
-/// writes (of Bevy's culling query, [`Culled`]).
-struct TableRows<'w> {
-    table: TableId,
-    inherited: &'w [InheritedVisibility],
-    view: &'w mut [ViewVisibility],
-    ticks: ContiguousComponentTicksMut<'w>,
-    class: Option<&'w [VisibilityClass]>,
-    layers: Option<&'w [RenderLayers]>,
-    has_range: bool,
-}
 
 /// Where a candidate's components are: its table among the query's, and
 /// its row.
@@ -86,9 +68,12 @@ pub(super) fn decide_proven_by_rows(
         return;
     };
     let RowScratch { located, slots } = scratch;
-    let mut tables: Vec<TableRows<'_>> = Vec::new();
-    for (ids, inherited, view, class, layers, .., has_range) in chunks {
-        let Some(&first) = ids.first() else { continue };
+    let mut tables: Vec<(TableId, CulledColumns<'_>)> = Vec::new();
+    for columns in chunks {
+        let columns = CulledColumns::new(columns);
+        let Some(&first) = columns.ids.first() else {
+            continue;
+        };
         let Ok(at) = entities.get_spawned(first) else {
             continue;
         };
@@ -97,16 +82,7 @@ pub(super) fn decide_proven_by_rows(
             slots.resize(id + 1, NONE);
         }
         slots[id] = tables.len() as u32;
-        let (view, ticks) = ContiguousMut::bypass_change_detection_split(view);
-        tables.push(TableRows {
-            table: at.table_id,
-            inherited,
-            view,
-            ticks,
-            class,
-            layers,
-            has_range,
-        });
+        tables.push((at.table_id, columns));
     }
     // The locations first, in a loop whose loads do not wait on each other.
     located.clear();
@@ -126,40 +102,17 @@ pub(super) fn decide_proven_by_rows(
             },
         )
     }));
-    for table in &tables {
-        slots[table.table.as_u32() as usize] = NONE;
+    for (id, _) in &tables {
+        slots[id.as_u32() as usize] = NONE;
     }
     for (i, (&(entity, _), &at)) in candidates.iter().zip(located.iter()).enumerate() {
         if let Some(&ahead) = located.get(i + LOOK_AHEAD)
-            && let Some(table) = tables.get(ahead.table as usize)
+            && let Some((_, columns)) = tables.get(ahead.table as usize)
         {
-            let row = ahead.row as usize;
-            prefetch_lines(&table.inherited[row]);
-            prefetch_lines(&table.view[row]);
-            if let Some(class) = table.class {
-                prefetch_lines(&class[row]);
-            }
+            columns.prefetch_proven(ahead.row as usize);
         }
-        let Some(table) = tables.get_mut(at.table as usize) else {
-            continue;
-        };
-        let row = at.row as usize;
-        let mask = table.layers.map(|layers| &layers[row]);
-        if !may_be_seen(
-            sight,
-            entity,
-            &table.inherited[row],
-            mask,
-            table.has_range,
-            ranges,
-        ) {
-            continue;
-        }
-        set_visible(table.view, &mut table.ticks, row);
-        if let Some(class) = table.class {
-            for &id in class[row].iter() {
-                seen.push(entity, id);
-            }
+        if let Some((_, columns)) = tables.get_mut(at.table as usize) {
+            columns.decide(at.row as usize, entity, sight, seen, true, ranges);
         }
     }
 }
@@ -177,40 +130,5 @@ fn decide_proven_one_by_one(
         if proven && let Ok(mut item) = query.get_mut(entity) {
             decide(sight, seen, &mut item, true, ranges);
         }
-    }
-}
-
-/// Bevy's `set_visible` on one row of a `ViewVisibility` column: the value
-/// changed as Bevy changes it, and the row's change tick (and caller, where
-/// Bevy tracks it) written exactly when Bevy's would be.
-pub(super) fn set_visible(
-    view: &mut [ViewVisibility],
-    ticks: &mut ContiguousComponentTicksMut<'_>,
-    row: usize,
-) {
-    let (last_run, this_run) = (ticks.last_run(), ticks.this_run());
-    let mut value = view[row];
-    // `set_visible` reads neither tick; the copy's changed tick becomes
-    // `this_run` exactly when it marks the value changed. (The column has
-    // no summary tick for it to update: `ViewVisibility` keeps none, which
-    // a test checks.)
-    let mut added = this_run;
-    let mut changed = Tick::new(this_run.get().wrapping_sub(1));
-    let mut caller = Location::caller();
-    let mut visibility = Mut::new(
-        &mut value,
-        &mut added,
-        &mut changed,
-        None,
-        last_run,
-        this_run,
-        MaybeLocation::new_with(|| &mut caller),
-    );
-    visibility.set_visible();
-    let marked = changed == this_run;
-    view[row] = value;
-    if marked {
-        ticks.changed_mut()[row] = this_run;
-        ticks.changed_by_mut().map(|by| by[row] = caller);
     }
 }

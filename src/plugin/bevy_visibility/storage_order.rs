@@ -11,13 +11,12 @@
 //! the walk goes through Bevy's own iteration, row by row.
 
 use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
-use bevy_ecs::change_detection::ContiguousMut;
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_utils::Parallel;
 
-use super::cameras::{Culled, Seen, Sight, View, decide, may_be_seen, passes_frustum};
-use super::rows::set_visible;
+use super::cameras::{Culled, Seen, Sight, View, decide};
+use super::columns::CulledColumns;
 
 /// One table's (or batch's) columns of [`Culled`].
 type Columns<'w, 's> = <Culled<'static> as ContiguousQueryData>::Contiguous<'w, 's>;
@@ -99,27 +98,10 @@ pub(super) fn decide_in_storage_order(
             .unwrap_or(0)
     };
     let walk = |lists: &mut Vec<Seen>, columns: Columns<'_, '_>| {
-        let (ids, inherited, view, class, layers, aabbs, spheres, transforms, unculled, has_range) =
-            columns;
-        let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(view);
-        for (row, &entity) in ids.iter().enumerate() {
+        let mut columns = CulledColumns::new(columns);
+        for (row, &entity) in columns.ids.iter().enumerate() {
             for (v, proven) in views_marked(marks_of(entity)) {
-                let sight = sights[v];
-                let mask = layers.map(|layers| &layers[row]);
-                if !may_be_seen(sight, entity, &inherited[row], mask, has_range, ranges) {
-                    continue;
-                }
-                let aabb = aabbs.map(|aabbs| &aabbs[row]);
-                let sphere = spheres.map(|spheres| &spheres[row]);
-                if !proven && !passes_frustum(sight, aabb, sphere, &transforms[row], unculled) {
-                    continue;
-                }
-                set_visible(values, &mut ticks, row);
-                if let Some(class) = class {
-                    for &id in class[row].iter() {
-                        lists[v].push(entity, id);
-                    }
-                }
+                columns.decide(row, entity, sights[v], &mut lists[v], proven, ranges);
             }
         }
     };
