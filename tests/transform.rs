@@ -165,3 +165,104 @@ fn a_caster_follows_its_turret_and_does_not_see_itself() {
     assert_eq!(hits.first(), None);
     assert_eq!(hits.ray().unwrap().origin, Vec3::new(0.0, 50.0, 0.0));
 }
+
+/// The entities whose `SpatialBounds` this frame's world boxes marked
+/// changed, recorded right after they are written.
+#[derive(Resource, Default)]
+struct MarkedChanged(Vec<Entity>);
+
+fn record_marked(mut marked: ResMut<MarkedChanged>, bounds: Query<(Entity, Ref<SpatialBounds>)>) {
+    marked.0 = bounds
+        .iter()
+        .filter(|(_, b)| b.is_changed())
+        .map(|(e, _)| e)
+        .collect();
+    marked.0.sort_unstable();
+}
+
+/// A disabling component stored in a sparse set: every query of an app that
+/// registers one is read row by row, not table by table.
+#[derive(Component)]
+#[component(storage = "SparseSet")]
+struct Asleep;
+
+/// A world box is marked changed in exactly the frames where its value
+/// changes, as `set_if_neq` marks it (so that the index's sync sees only
+/// real moves), whether its transform, its local box or neither changed,
+/// or either was written with its old value; read table by table and
+/// (with a sparse disabling component registered) row by row.
+#[test]
+fn world_boxes_are_marked_changed_exactly_when_they_change() {
+    for row_by_row in [false, true] {
+        let mut app = app();
+        if row_by_row {
+            app.world_mut().register_disabling_component::<Asleep>();
+        }
+        app.init_resource::<MarkedChanged>()
+            .add_systems(PostUpdate, record_marked.after(SpatialIndexSystems::Bounds));
+        let entities: Vec<Entity> = (0..40)
+            .map(|i| {
+                let transform = Transform::from_xyz(i as f32 * 3.0, 0.0, 0.0);
+                app.world_mut()
+                    .spawn((transform, LocalBounds(local())))
+                    .id()
+            })
+            .collect();
+        let mut before: Vec<Option<SpatialBounds>> = vec![None; entities.len()];
+        for frame in 0..12u32 {
+            for (i, &e) in entities.iter().enumerate() {
+                let mut world = app.world_mut().entity_mut(e);
+                match (i as u32 + frame) % 6 {
+                    // A move.
+                    0 => world.get_mut::<Transform>().unwrap().translation.y += 1.0,
+                    // The same transform written again.
+                    1 => {
+                        let same = *world.get::<Transform>().unwrap();
+                        *world.get_mut::<Transform>().unwrap() = same;
+                    }
+                    // The same local box written again.
+                    2 => world.get_mut::<LocalBounds>().unwrap().0 = local(),
+                    // A new local box.
+                    3 => {
+                        let grown = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0 + frame as f32));
+                        world.get_mut::<LocalBounds>().unwrap().0 = grown.unwrap();
+                    }
+                    // Nothing.
+                    _ => {}
+                }
+            }
+            app.update();
+            let now: Vec<Option<SpatialBounds>> = entities
+                .iter()
+                .map(|&e| app.world().get::<SpatialBounds>(e).copied())
+                .collect();
+            let mut expected: Vec<Entity> = entities
+                .iter()
+                .zip(before.iter().zip(&now))
+                .filter(|(_, (b, n))| b != n)
+                .map(|(&e, _)| e)
+                .collect();
+            expected.sort_unstable();
+            let marked = &app.world().resource::<MarkedChanged>().0;
+            assert_eq!(marked, &expected, "frame {frame}, row by row {row_by_row}");
+            // Some frames change boxes and some leave boxes unchanged
+            // although their inputs were written.
+            assert!(frame == 0 || (!expected.is_empty() && expected.len() < entities.len()));
+            let index = app.world().resource::<SpatialIndex>();
+            for (&e, bounds) in entities.iter().zip(&now) {
+                assert_eq!(index.get(e), bounds.map(|b| b.0), "frame {frame}");
+            }
+            index.validate().unwrap();
+            before = now;
+        }
+    }
+}
+
+/// `SpatialBounds` keeps no summary tick: the world boxes are written
+/// table by table with their change ticks, which would leave one stale.
+#[test]
+fn spatial_bounds_keeps_no_summary_tick() {
+    let mut world = World::new();
+    let id = world.register_component::<SpatialBounds>();
+    assert!(!world.components().get_info(id).unwrap().summary_tick());
+}

@@ -7,6 +7,7 @@ use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
 use bevy_ecs::prelude::*;
 
 use super::bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
+use super::change_scan::ChangeTest;
 use super::diagnostics::DiagnosticsSink;
 use crate::geometry::Aabb;
 use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
@@ -157,27 +158,46 @@ pub(crate) struct SyncCount {
     pub invalid: u64,
 }
 
+/// What a layer's sync reads of an entity, table by table: the change
+/// ticks of its box, and the added ticks of the layer's marker.
+type LayerRow<'a, L> = (Entity, Ref<'a, SpatialBounds>, Ref<'a, L>);
+
 /// Applies the changed boxes of this frame to the index of a layer `L`
 /// other than the main one: an entity also enters when it gains `L`.
-#[allow(clippy::type_complexity)]
 pub(crate) fn sync_layer<L: Component>(
     mut index: ResMut<SpatialIndex<L>>,
-    changed: Query<
-        (Entity, &SpatialBounds),
-        (
-            With<L>,
-            Without<NoSpatialIndex>,
-            Or<(Changed<SpatialBounds>, Added<L>)>,
-        ),
-    >,
+    members: Query<LayerRow<'_, L>, Without<NoSpatialIndex>>,
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
+    let scratch = &mut *scratch;
+    let mut changed = std::mem::take(&mut scratch.changed);
+    changed.clear();
+    // Table by table where the query can be read so (a marker or a
+    // disabling component stored in a sparse set makes it row by row).
+    match members.contiguous_iter() {
+        Ok(tables) => tables.for_each(|(entities, bounds, marker)| {
+            let test = ChangeTest::new(bounds.last_run_tick(), bounds.this_run_tick());
+            let columns = [bounds.changed_ticks_slice(), marker.added_ticks_slice()];
+            test.for_each_changed(columns, |row| {
+                changed.push((entities[row], bounds[row].0, None));
+            });
+        }),
+        Err(_) => changed.extend(
+            members
+                .iter()
+                .filter(|(_, bounds, marker)| bounds.is_changed() || marker.is_added())
+                .map(|(entity, bounds, _)| (entity, bounds.0, None)),
+        ),
+    }
     // Every entity of a layer is in the main layer too: one bad box is
     // reported there only, one warning and one count.
-    let changed = changed.iter().map(|(e, b)| (e, b.0, None));
-    apply_changes(&mut index, changed, &mut scratch, &sink, false);
+    apply_changes(&mut index, changed.drain(..), scratch, &sink, false);
+    scratch.changed = changed;
 }
+
+/// What the main sync reads of an entity, table by table.
+type MainRow<'a> = (Entity, Ref<'a, SpatialBounds>, &'a SpatialHandle);
 
 /// Applies the changed boxes of this frame to the main index. Gaining the
 /// component is a change of it, so one change test per entity suffices
@@ -185,18 +205,37 @@ pub(crate) fn sync_layer<L: Component>(
 #[allow(clippy::type_complexity)]
 pub(crate) fn sync_main(
     mut index: ResMut<SpatialIndex>,
-    mut changed: Query<
-        (Entity, &SpatialBounds, &mut SpatialHandle),
-        (Without<NoSpatialIndex>, Changed<SpatialBounds>),
-    >,
+    mut members: ParamSet<(
+        Query<MainRow<'_>, Without<NoSpatialIndex>>,
+        Query<&mut SpatialHandle, Without<NoSpatialIndex>>,
+    )>,
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
-    let boxes = changed.iter().map(|(e, b, h)| (e, b.0, h.0));
-    apply_changes(&mut index, boxes, &mut scratch, &sink, true);
+    let scratch = &mut *scratch;
+    let mut changed = std::mem::take(&mut scratch.changed);
+    changed.clear();
+    let scanned = members.p0();
+    match scanned.contiguous_iter() {
+        Ok(tables) => tables.for_each(|(entities, bounds, handles)| {
+            let test = ChangeTest::new(bounds.last_run_tick(), bounds.this_run_tick());
+            test.for_each_changed([bounds.changed_ticks_slice()], |row| {
+                changed.push((entities[row], bounds[row].0, handles[row].0));
+            });
+        }),
+        Err(_) => changed.extend(
+            scanned
+                .iter()
+                .filter(|(_, bounds, _)| bounds.is_changed())
+                .map(|(entity, bounds, handle)| (entity, bounds.0, handle.0)),
+        ),
+    }
+    apply_changes(&mut index, changed.drain(..), scratch, &sink, true);
+    scratch.changed = changed;
     // The handles of the entities just inserted, kept on them.
+    let mut handles = members.p1();
     for &(entity, id) in &scratch.inserted {
-        if let Ok((.., mut handle)) = changed.get_mut(entity) {
+        if let Ok(mut handle) = handles.get_mut(entity) {
             handle.0 = Some(id);
         }
     }
@@ -217,6 +256,8 @@ pub(crate) struct SyncScratch {
     /// The handles of the entities the last sync inserted, for callers that
     /// keep them on the entities.
     pub inserted: Vec<(Entity, ProxyId)>,
+    /// The changed entities a sync system found, before they are applied.
+    changed: Vec<(Entity, Aabb, Option<ProxyId>)>,
 }
 
 /// Updates, inserts or (for invalid boxes) removes each changed entity,
@@ -244,6 +285,7 @@ pub(crate) fn apply_changes<L: Component>(
         kept_moves,
         refused,
         inserted,
+        ..
     } = scratch;
     fresh.clear();
     moves.clear();

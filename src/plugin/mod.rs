@@ -60,6 +60,7 @@ mod bevy_camera;
 #[cfg(feature = "bevy_camera")]
 mod bevy_visibility;
 mod bounds;
+mod change_scan;
 mod culling;
 mod diagnostics;
 mod filter;

@@ -2,6 +2,9 @@
 //! [`LocalBounds`] gets its [`SpatialBounds`] computed after transform
 //! propagation, only when its transform or local box changed.
 
+use std::panic::Location;
+
+use bevy_ecs::change_detection::ContiguousMut;
 use bevy_ecs::prelude::*;
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectComponent;
@@ -11,6 +14,7 @@ use bevy_transform::prelude::GlobalTransform;
 
 use super::SpatialIndexSystems;
 use super::bounds::SpatialBounds;
+use super::change_scan::ChangeTest;
 use crate::geometry::Aabb;
 
 /// The entity's box in its local space; its world box follows its
@@ -67,21 +71,55 @@ pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
     }
 }
 
-#[allow(clippy::type_complexity)]
-fn bounds_from_transforms(
-    mut entities: Query<
-        (&LocalBounds, &GlobalTransform, &mut SpatialBounds),
-        Or<(Changed<GlobalTransform>, Changed<LocalBounds>)>,
-    >,
-) {
-    for (local, global, mut bounds) in &mut entities {
-        let affine = global.affine();
-        let collapsed = affine.matrix3.determinant() == 0.0;
-        let world = if collapsed {
-            Aabb::INVERTED
-        } else {
-            local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
-        };
-        bounds.set_if_neq(SpatialBounds(world));
+/// What the world boxes are computed from, and written to, table by table.
+type TransformRow<'a> = (
+    Ref<'a, LocalBounds>,
+    Ref<'a, GlobalTransform>,
+    &'a mut SpatialBounds,
+);
+
+/// Writes the world box of every entity whose transform or local box
+/// changed since the last run, marking it changed only where it differs
+/// (Bevy's `set_if_neq`), so that the index's sync sees only real moves.
+fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
+    // Table by table where the query can be read so (an app's disabling
+    // component stored in a sparse set makes it row by row).
+    let tables = match entities.contiguous_iter_mut() {
+        Ok(tables) => tables,
+        Err(_) => {
+            for (local, global, mut bounds) in &mut entities {
+                if local.is_changed() || global.is_changed() {
+                    bounds.set_if_neq(SpatialBounds(world_box(&local, &global)));
+                }
+            }
+            return;
+        }
+    };
+    for (locals, globals, bounds) in tables {
+        let test = ChangeTest::new(globals.last_run_tick(), globals.this_run_tick());
+        let this_run = globals.this_run_tick();
+        let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(bounds);
+        let columns = [globals.changed_ticks_slice(), locals.changed_ticks_slice()];
+        test.for_each_changed(columns, |row| {
+            let world = SpatialBounds(world_box(&locals[row], &globals[row]));
+            if values[row] != world {
+                // What `set_if_neq` writes. `SpatialBounds` keeps no
+                // summary tick for it to update (a test checks).
+                values[row] = world;
+                ticks.changed_mut()[row] = this_run;
+                let caller = Location::caller();
+                ticks.changed_by_mut().map(|by| by[row] = caller);
+            }
+        });
     }
+}
+
+/// The world box of `local` under `global`, or the inverted box (refused
+/// by the index) where the transform collapses an axis or is not finite.
+fn world_box(local: &LocalBounds, global: &GlobalTransform) -> Aabb {
+    let affine = global.affine();
+    if affine.matrix3.determinant() == 0.0 {
+        return Aabb::INVERTED;
+    }
+    local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
 }

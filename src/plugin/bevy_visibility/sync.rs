@@ -6,7 +6,6 @@ use bevy_camera::primitives::Aabb as BevyAabb;
 use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, NoFrustumCulling, ViewVisibility,
 };
-use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
 use bevy_ecs::entity_disabling::Disabled;
 use bevy_ecs::event::EventPattern;
 use bevy_ecs::prelude::*;
@@ -17,6 +16,7 @@ use glam::Vec3;
 
 use super::{BevyVisibilitySettings, Renderable};
 use crate::geometry::Aabb;
+use crate::plugin::change_scan::ChangeTest;
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::{self, SpatialIndex, SyncScratch};
 use crate::tree::ProxyId;
@@ -178,48 +178,29 @@ pub(super) fn sync_renderables(
 }
 
 /// The changed rows of one table's run of renderables, with their world
-/// boxes, pushed onto `out`.
+/// boxes, pushed onto `out`: a row changed where its box's or its
+/// transform's change tick is newer than the system's last run, as Bevy's
+/// `Changed` filter decides.
 ///
-/// A row changed where its box's or its transform's change tick is newer
-/// than the system's last run, as Bevy's `Changed` filter decides. The
-/// ticks are compared a few rows at a time (a loop the compiler turns into
-/// vector instructions), and only a run with a change is looked at row by
-/// row: a frame where one renderable in a hundred moves finds most runs
-/// unchanged. (Gathering the changed rows first and reading their boxes
-/// afterwards, each asked for a few rows ahead, was slower: here the
-/// boxes' cache misses overlap with the comparisons of the runs between.)
+/// (Gathering the changed rows first and reading their boxes afterwards,
+/// each asked for a few rows ahead, was slower: here the boxes' cache
+/// misses overlap with the comparisons of the unchanged runs between.)
 fn scan_table(
     table: <Scanned<'_> as ContiguousQueryData>::Contiguous<'_, '_>,
     out: &mut Vec<ChangedBox>,
 ) {
-    const RUN: usize = 8;
     let (ids, aabbs, transforms, handles) = table;
-    let this_run = transforms.this_run_tick().get();
-    let since_system = this_run
-        .wrapping_sub(transforms.last_run_tick().get())
-        .min(MAX_CHANGE_AGE);
-    let newer = |tick: &Tick| this_run.wrapping_sub(tick.get()).min(MAX_CHANGE_AGE) < since_system;
-    let aabb_ticks = aabbs.changed_ticks_slice();
-    let transform_ticks = transforms.changed_ticks_slice();
-    for start in (0..ids.len()).step_by(RUN) {
-        let run = start..(start + RUN).min(ids.len());
-        let any = transform_ticks[run.clone()]
-            .iter()
-            .zip(&aabb_ticks[run.clone()])
-            .fold(false, |any, (t, a)| any | newer(t) | newer(a));
-        if !any {
-            continue;
-        }
-        for row in run {
-            if newer(&transform_ticks[row]) || newer(&aabb_ticks[row]) {
-                // Entities spawned before the plugin made the handle a
-                // required component have none: their entries are looked
-                // up instead.
-                let kept = handles.and_then(|h| h[row].0);
-                out.push((ids[row], world_box(&aabbs[row], &transforms[row]), kept));
-            }
-        }
-    }
+    let test = ChangeTest::new(transforms.last_run_tick(), transforms.this_run_tick());
+    let columns = [
+        transforms.changed_ticks_slice(),
+        aabbs.changed_ticks_slice(),
+    ];
+    test.for_each_changed(columns, |row| {
+        // Entities spawned before the plugin made the handle a required
+        // component have none: their entries are looked up instead.
+        let kept = handles.and_then(|h| h[row].0);
+        out.push((ids[row], world_box(&aabbs[row], &transforms[row]), kept));
+    });
 }
 
 /// [`scan_table`] for one row, through Bevy's iteration: its world box if

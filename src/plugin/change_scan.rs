@@ -1,0 +1,135 @@
+//! Bevy's `Changed` and `Added` tests over a table's change ticks, a few
+//! rows at a time.
+//!
+//! The syncs scan every indexed entity each frame for the few that moved.
+//! Through Bevy's row-by-row iteration each row costs a call and a branch;
+//! a table's tick slices (Bevy's contiguous queries) are compared eight
+//! rows at a time in a loop the compiler turns into vector instructions,
+//! and only a run of rows with a change is looked at row by row.
+
+use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
+
+/// Rows compared together before any is looked at alone.
+const RUN: usize = 8;
+
+/// The test a system's `Changed<T>` filter applies to a tick: newer than the
+/// system's last run, as seen from this run (ticks wrap, and ages are capped
+/// at `MAX_CHANGE_AGE` the way Bevy caps them).
+#[derive(Clone, Copy)]
+pub(crate) struct ChangeTest {
+    this_run: u32,
+    since_system: u32,
+}
+
+impl ChangeTest {
+    /// The test of a system that last ran at `last_run` and runs now at
+    /// `this_run`.
+    pub(crate) fn new(last_run: Tick, this_run: Tick) -> Self {
+        let this_run = this_run.get();
+        ChangeTest {
+            this_run,
+            since_system: this_run.wrapping_sub(last_run.get()).min(MAX_CHANGE_AGE),
+        }
+    }
+
+    /// Whether `tick` is newer than the system's last run.
+    #[inline]
+    pub(crate) fn newer(self, tick: &Tick) -> bool {
+        self.this_run.wrapping_sub(tick.get()).min(MAX_CHANGE_AGE) < self.since_system
+    }
+
+    /// Calls `row` with each row where any of `columns`' ticks is newer
+    /// than the system's last run, in row order. The columns are one
+    /// table's, of equal length.
+    #[inline]
+    pub(crate) fn for_each_changed<const N: usize>(
+        self,
+        columns: [&[Tick]; N],
+        mut row: impl FnMut(usize),
+    ) {
+        let len = columns.first().map_or(0, |c| c.len());
+        debug_assert!(columns.iter().all(|c| c.len() == len));
+        for start in (0..len).step_by(RUN) {
+            let run = start..(start + RUN).min(len);
+            let any = columns.iter().any(|ticks| {
+                ticks[run.clone()]
+                    .iter()
+                    .fold(false, |any, tick| any | self.newer(tick))
+            });
+            if !any {
+                continue;
+            }
+            for r in run {
+                if columns.iter().any(|ticks| self.newer(&ticks[r])) {
+                    row(r);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The test against Bevy's own `Tick::is_newer_than`, over ticks around
+    /// the last run, far in the past, and across the wrap of the counter.
+    #[test]
+    fn newer_is_bevys_is_newer_than() {
+        let runs = [
+            (0u32, 1u32),
+            (5, 10),
+            (u32::MAX - 3, 4),
+            (100, 100 + MAX_CHANGE_AGE + 50),
+        ];
+        for (last, now) in runs {
+            let test = ChangeTest::new(Tick::new(last), Tick::new(now));
+            let around = [
+                0,
+                1,
+                last.wrapping_sub(1),
+                last,
+                last.wrapping_add(1),
+                now.wrapping_sub(1),
+                now,
+                now.wrapping_add(1),
+                now.wrapping_sub(MAX_CHANGE_AGE),
+                now.wrapping_sub(MAX_CHANGE_AGE).wrapping_add(1),
+                u32::MAX,
+            ];
+            for t in around {
+                let tick = Tick::new(t);
+                assert_eq!(
+                    test.newer(&tick),
+                    tick.is_newer_than(Tick::new(last), Tick::new(now)),
+                    "tick {t}, last run {last}, this run {now}"
+                );
+            }
+        }
+    }
+
+    /// Every changed row is reported once, in order, whichever column
+    /// changed and wherever it falls in a run of eight.
+    #[test]
+    fn for_each_changed_reports_exactly_the_changed_rows() {
+        let (last, now) = (10, 20);
+        let test = ChangeTest::new(Tick::new(last), Tick::new(now));
+        for len in [0, 1, 7, 8, 9, 17, 40] {
+            let a: Vec<Tick> = (0..len)
+                .map(|i| Tick::new(if i % 5 == 3 { 15 } else { 5 }))
+                .collect();
+            let b: Vec<Tick> = (0..len)
+                .map(|i| Tick::new(if i % 7 == 6 { 20 } else { 10 }))
+                .collect();
+            let mut seen = Vec::new();
+            test.for_each_changed([&a, &b], |r| seen.push(r));
+            let expected: Vec<usize> = (0..len)
+                .filter(|&i| {
+                    a[i].is_newer_than(Tick::new(last), Tick::new(now))
+                        || b[i].is_newer_than(Tick::new(last), Tick::new(now))
+                })
+                .collect();
+            assert_eq!(seen, expected, "{len} rows");
+        }
+    }
+}
