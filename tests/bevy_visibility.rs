@@ -586,6 +586,17 @@ fn a_sparse_disabling_component_changes_no_answer() {
             }
             twins.update();
             seen += twins.check(frame);
+            // Nothing asleep or disabled is left in the index.
+            let world = twins.ours.world();
+            let index = world.resource::<SpatialIndex<Renderable>>();
+            index.validate().unwrap();
+            for (_, entity, _) in index.tree().iter() {
+                let held = world.entity(entity);
+                assert!(
+                    !held.contains::<Asleep>() && !held.contains::<Disabled>(),
+                    "frame {frame}: {entity} is indexed while disabled"
+                );
+            }
             twins.mutate();
         }
         assert!(seen > 200, "seed {seed}: {seen} seen in 20 frames");

@@ -63,6 +63,7 @@ mod bounds;
 mod change_scan;
 mod culling;
 mod diagnostics;
+mod disabling;
 mod filter;
 mod frame_queries;
 mod index;
@@ -344,16 +345,22 @@ impl SpatialAppExt for App {
             if index::is_main_layer::<L>() {
                 self.add_systems(
                     schedule,
-                    index::sync_main
-                        .in_set(SpatialIndexSystems::Sync)
-                        .run_if(any_with_component::<SpatialBounds>),
+                    (
+                        disabling::watch_disabling::<L>(Some(disabling::mark_bounds_changed)),
+                        index::sync_main.run_if(any_with_component::<SpatialBounds>),
+                    )
+                        .chain()
+                        .in_set(SpatialIndexSystems::Sync),
                 );
             } else {
                 self.add_systems(
                     schedule,
-                    index::sync_layer::<L>
-                        .in_set(SpatialIndexSystems::Sync)
-                        .run_if(any_with_component::<L>),
+                    (
+                        disabling::watch_disabling::<L>(None),
+                        index::sync_layer::<L>.run_if(any_with_component::<L>),
+                    )
+                        .chain()
+                        .in_set(SpatialIndexSystems::Sync),
                 );
             }
         }

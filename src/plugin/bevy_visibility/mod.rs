@@ -29,6 +29,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
 use bevy_transform::TransformSystems;
 
+use super::disabling;
 use super::index::SpatialIndex;
 use super::{SpatialIndexConfig, SpatialIndexSystems};
 
@@ -189,7 +190,12 @@ impl Plugin for BevyVisibilityPlugin {
             .add_systems(
                 PostUpdate,
                 (
-                    sync::sync_renderables.in_set(RenderableSyncSystems),
+                    (
+                        disabling::watch_disabling::<Renderable>(Some(sync::come_back_on_enable)),
+                        sync::sync_renderables,
+                    )
+                        .chain()
+                        .in_set(RenderableSyncSystems),
                     cameras::check_visibility_from_index
                         .in_set(VisibilitySystems::CheckVisibility)
                         // Where Bevy orders its own: after this frame's

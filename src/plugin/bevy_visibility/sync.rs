@@ -6,8 +6,10 @@ use bevy_camera::primitives::Aabb as BevyAabb;
 use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, NoFrustumCulling, ViewVisibility,
 };
+use bevy_ecs::component::ComponentId;
 use bevy_ecs::entity_disabling::Disabled;
 use bevy_ecs::event::EventPattern;
+use bevy_ecs::observer::Observer;
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_transform::prelude::GlobalTransform;
@@ -241,6 +243,13 @@ fn leave<P: EventPattern>(
     P::Event: EntityEvent,
 {
     index::remove_from_layer(event.event_target(), &mut index, &sink);
+}
+
+/// The renderables' [`ComeBack`](crate::plugin::disabling::ComeBack): an
+/// entity that loses a disabling component the app registered is read
+/// again.
+pub(super) fn come_back_on_enable(id: ComponentId) -> Observer {
+    Observer::new(come_back::<Remove<()>>).with_component(id)
 }
 
 fn come_back<P: EventPattern>(event: On<P>, mut resync: ResMut<Resync>)
