@@ -26,23 +26,19 @@ pub(crate) type ComeBack = fn(ComponentId) -> Observer;
 /// The system that keeps `SpatialIndex<L>` watching every disabling
 /// component the app registers; `come_back`, where given, makes the
 /// observer that puts an enabled entity back (one index per entity set
-/// needs it: the main layer's, whose sync every layer follows).
+/// needs it: the main layer's, whose sync every layer follows). Run it
+/// when `DefaultQueryFilters` changed.
 pub(crate) fn watch_disabling<L: Component>(
     come_back: Option<ComeBack>,
-) -> impl FnMut(Res<DefaultQueryFilters>, Local<Vec<ComponentId>>, Commands) {
-    move |filters, mut watched, mut commands| {
-        if !filters.is_changed() {
-            return;
-        }
+) -> impl FnMut(Res<DefaultQueryFilters>, Res<SpatialIndex<L>>, Commands) {
+    move |filters, index, mut commands| {
         let new: Vec<ComponentId> = filters
             .disabling_ids()
-            .filter(|id| !watched.contains(id))
+            .filter(|id| !index.watched_disabling.contains(id))
             .collect();
-        if new.is_empty() {
-            return;
+        if !new.is_empty() {
+            commands.queue(move |world: &mut World| start_watching::<L>(world, &new, come_back));
         }
-        watched.extend(&new);
-        commands.queue(move |world: &mut World| start_watching::<L>(world, &new, come_back));
     }
 }
 
@@ -54,12 +50,21 @@ fn start_watching<L: Component>(
     come_back: Option<ComeBack>,
 ) {
     let disabled = world.register_component::<Disabled>();
-    for &id in ids.iter().filter(|&&id| id != disabled) {
-        world.spawn(Observer::new(leave::<L>).with_component(id));
-        if let Some(come_back) = come_back {
-            world.spawn(come_back(id));
-        }
-        world.resource_scope(|world, mut index: Mut<SpatialIndex<L>>| {
+    world.resource_scope(|world, mut index: Mut<SpatialIndex<L>>| {
+        for &id in ids {
+            // Two systems (the startup sync's and the frame's) may have
+            // asked for the same component before either request ran.
+            if index.watched_disabling.contains(&id) {
+                continue;
+            }
+            index.watched_disabling.push(id);
+            if id == disabled {
+                continue;
+            }
+            world.spawn(Observer::new(leave::<L>).with_component(id));
+            if let Some(come_back) = come_back {
+                world.spawn(come_back(id));
+            }
             let carriers: Vec<Entity> = index
                 .tree()
                 .iter()
@@ -71,8 +76,8 @@ fn start_watching<L: Component>(
             for entity in carriers {
                 index::remove_from_layer(entity, &mut index, sink);
             }
-        });
-    }
+        }
+    });
 }
 
 /// Observer: an entity gained a disabling component, so it leaves the

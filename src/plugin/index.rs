@@ -3,6 +3,7 @@
 
 use std::marker::PhantomData;
 
+use bevy_ecs::component::ComponentId;
 use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
 use bevy_ecs::prelude::*;
 
@@ -53,6 +54,8 @@ pub struct SpatialIndex<L: Component = SpatialBounds> {
     /// Bumped by every change of the indexed set or of a box, so that joins
     /// can skip frames where neither of their layers changed.
     generation: u64,
+    /// The disabling components whose observers serve this index.
+    pub(crate) watched_disabling: Vec<ComponentId>,
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -65,6 +68,7 @@ impl<L: Component> SpatialIndex<L> {
             warned: EntityHashSet::default(),
             unindexed: EntityHashSet::default(),
             generation: 0,
+            watched_disabling: Vec::new(),
             _layer: PhantomData,
         }
     }

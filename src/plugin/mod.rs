@@ -76,7 +76,7 @@ mod raycast;
 mod transform;
 
 use bevy_app::prelude::*;
-use bevy_ecs::entity_disabling::Disabled;
+use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::Allow;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
@@ -346,7 +346,8 @@ impl SpatialAppExt for App {
                 self.add_systems(
                     schedule,
                     (
-                        disabling::watch_disabling::<L>(Some(disabling::mark_bounds_changed)),
+                        disabling::watch_disabling::<L>(Some(disabling::mark_bounds_changed))
+                            .run_if(resource_changed::<DefaultQueryFilters>),
                         index::sync_main.run_if(any_with_component::<SpatialBounds>),
                     )
                         .chain()
@@ -356,7 +357,8 @@ impl SpatialAppExt for App {
                 self.add_systems(
                     schedule,
                     (
-                        disabling::watch_disabling::<L>(None),
+                        disabling::watch_disabling::<L>(None)
+                            .run_if(resource_changed::<DefaultQueryFilters>),
                         index::sync_layer::<L>.run_if(any_with_component::<L>),
                     )
                         .chain()

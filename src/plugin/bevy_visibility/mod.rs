@@ -25,6 +25,7 @@ use bevy_camera::primitives::Aabb as BevyAabb;
 use bevy_camera::visibility::{
     VisibilitySystems, check_visibility_cpu_culling, check_visibility_ranges,
 };
+use bevy_ecs::entity_disabling::DefaultQueryFilters;
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{ScheduleCleanupPolicy, ScheduleLabel};
 use bevy_transform::TransformSystems;
@@ -191,7 +192,8 @@ impl Plugin for BevyVisibilityPlugin {
                 PostUpdate,
                 (
                     (
-                        disabling::watch_disabling::<Renderable>(Some(sync::come_back_on_enable)),
+                        disabling::watch_disabling::<Renderable>(Some(sync::come_back_on_enable))
+                            .run_if(resource_changed::<DefaultQueryFilters>),
                         sync::sync_renderables,
                     )
                         .chain()
