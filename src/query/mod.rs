@@ -18,6 +18,8 @@ pub mod oracle;
 mod overlap;
 #[cfg(feature = "parallel")]
 mod parallel;
+#[cfg(feature = "parallel")]
+mod parallel_workspace;
 mod ray;
 #[cfg(target_arch = "x86_64")]
 mod ray_avx;
@@ -26,6 +28,7 @@ mod ray_avx512;
 mod ray_batch;
 mod ray_lanes;
 mod ray_origin;
+mod ray_results;
 mod sphere;
 mod workspace;
 
@@ -35,7 +38,7 @@ pub use nearest::Neighbor;
 #[cfg(feature = "parallel")]
 pub use parallel::ParallelWorkspace;
 pub use ray::{RayHit, RayMode};
-pub use ray_batch::RayResults;
+pub use ray_results::RayResults;
 pub use workspace::QueryWorkspace;
 
 /// Orders the children a node just pushed onto a depth-first stack by

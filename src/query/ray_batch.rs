@@ -21,75 +21,11 @@ use std::ops::{ControlFlow, Range};
 use super::QueryWorkspace;
 use super::ray::{RayHit, RayMode};
 use super::ray_lanes::ray_lanes;
+use super::ray_results::RayResults;
 use crate::geometry::predicates::RayTest;
 use crate::geometry::{Ray, SpatialError};
 use crate::tree::RTree;
 use crate::tree::node::{NIL, Node};
-
-/// The answers of a batch: slot `i` belongs to ray `i` ([contract S6](crate::contract)).
-#[derive(Clone, Debug)]
-pub struct RayResults<K> {
-    slots: Vec<Result<(Range<u32>, bool), SpatialError>>,
-    hits: Vec<RayHit<K>>,
-}
-
-// Not derived: an empty result needs no default key.
-impl<K> Default for RayResults<K> {
-    fn default() -> Self {
-        RayResults {
-            slots: Vec::new(),
-            hits: Vec::new(),
-        }
-    }
-}
-
-impl<K: Copy> RayResults<K> {
-    /// Number of slots (rays of the last batch).
-    pub fn len(&self) -> usize {
-        self.slots.len()
-    }
-
-    /// Whether the last batch was empty.
-    pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
-    }
-
-    /// The hits of ray `i`, sorted by `(t, key)`: at most one in
-    /// [`RayMode::First`], none in [`RayMode::Any`]. The ray's own error if it
-    /// was invalid. Panics if `i` is out of range.
-    pub fn hits(&self, i: usize) -> Result<&[RayHit<K>], SpatialError> {
-        let (range, _) = self.slots[i].as_ref().map_err(|e| *e)?;
-        Ok(&self.hits[range.start as usize..range.end as usize])
-    }
-
-    /// The first hit of ray `i` (in any mode but [`RayMode::Any`]).
-    pub fn first(&self, i: usize) -> Result<Option<RayHit<K>>, SpatialError> {
-        Ok(self.hits(i)?.first().copied())
-    }
-
-    /// Appends the slots of `other` after this batch's slots.
-    #[cfg(feature = "parallel")]
-    pub(crate) fn append(&mut self, other: &RayResults<K>) {
-        let offset = self.hits.len() as u32;
-        self.hits.extend_from_slice(&other.hits);
-        self.slots.extend(other.slots.iter().map(|slot| {
-            slot.clone()
-                .map(|(range, any)| (range.start + offset..range.end + offset, any))
-        }));
-    }
-
-    /// Empties the results, keeping their memory.
-    #[cfg(feature = "parallel")]
-    pub(crate) fn clear(&mut self) {
-        self.slots.clear();
-        self.hits.clear();
-    }
-
-    /// Whether ray `i` hit anything (in every mode).
-    pub fn any(&self, i: usize) -> Result<bool, SpatialError> {
-        self.slots[i].as_ref().map(|(_, any)| *any).map_err(|e| *e)
-    }
-}
 
 /// Per-ray state of a batch, kept in the workspace between frames.
 #[derive(Clone, Debug, Default)]
