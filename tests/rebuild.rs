@@ -521,3 +521,60 @@ fn a_teleport_wears_the_tiling_as_a_respawn_does() {
     }
     assert!(!stepped.is_worn());
 }
+
+/// The maintenance counters count each change the caller made once: the
+/// rebuild's catch-up, which applies the changes made while the work was
+/// away to the new structure through the same moves, inserts and removals,
+/// counts only as the rebuild. The memory it holds meanwhile is counted
+/// until the swap.
+#[test]
+fn a_rebuild_counts_replayed_changes_once_and_its_memory_until_the_swap() {
+    let scene = TownScene::new(5_000, 31);
+    let (mut tree, ids) = scene.bulk_loaded_tree();
+    tree.start_rebuild();
+    let mut work = tree.take_rebuild_work().unwrap();
+    tree.take_maintenance_stats();
+    let mut rng = SceneRng::new(32);
+    let (mut moves, mut inserts, mut removals) = (0u64, 0u64, 0u64);
+    for (i, &id) in ids.iter().enumerate().take(1_500) {
+        match i % 3 {
+            0 | 1 => {
+                // Steps and jumps: every kind of move.
+                let (_, old) = tree.get(id).unwrap();
+                let step = if i % 3 == 0 { 0.3 } else { 400.0 };
+                let moved = Aabb::new(old.min + Vec3::splat(step), old.max + Vec3::splat(step));
+                tree.update(id, moved.unwrap()).unwrap();
+                moves += 1;
+            }
+            _ => {
+                tree.remove(id).unwrap();
+                removals += 1;
+                tree.insert(u32::MAX - i as u32, cube(rng.point_in_world(), 1.0))
+                    .unwrap();
+                inserts += 1;
+            }
+        }
+    }
+    work.run();
+    assert!(tree.finish_rebuild_work(work));
+    // The new structure, about the size of the tree's own, is held beside
+    // it until the swap, and counted.
+    let memory = tree.memory();
+    assert!(memory.rebuild >= memory.nodes / 2, "{memory:?}");
+    let mut steps = 0;
+    while !tree.step_rebuild_units(200) {
+        steps += 1;
+        assert!(steps < 20, "not swapped in");
+    }
+    tree.validate().unwrap();
+    let stats = tree.take_maintenance_stats();
+    let counted_moves = stats.moves_in_place
+        + stats.moves_in_leaf
+        + stats.moves_leaf_grown
+        + stats.moves_reinserted;
+    assert_eq!(counted_moves, moves, "{stats:?}");
+    assert_eq!(stats.inserts, inserts, "{stats:?}");
+    assert_eq!(stats.removals, removals, "{stats:?}");
+    assert_eq!(stats.rebuilds, 1, "{stats:?}");
+    assert_eq!(tree.memory().rebuild, 0);
+}

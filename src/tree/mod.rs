@@ -174,7 +174,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// The memory the tree holds, by part (allocated capacity, so a tree
     /// that shrank keeps what it grew to). A rebuild under way
     /// ([`RTree::start_rebuild`]) holds a second structure and a snapshot
-    /// beside it until its swap, not counted here.
+    /// beside the tree until its swap: [`MemoryUse::rebuild`].
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -186,13 +186,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// }
     /// let memory = tree.memory();
     /// assert!(memory.total() / tree.len() < 200, "{memory:?}");
+    /// assert_eq!(memory.rebuild, 0);
+    ///
+    /// // While a rebuild runs, its structure is counted too, until the swap.
+    /// tree.start_rebuild();
+    /// tree.step_rebuild_units(1);
+    /// assert!(tree.memory().rebuild > 0);
+    /// while !tree.step_rebuild_units(1_000) {}
+    /// assert_eq!(tree.memory().rebuild, 0);
     /// # Ok::<(), bevy_rtree::SpatialError>(())
     /// ```
     pub fn memory(&self) -> MemoryUse {
-        use std::mem::size_of;
-        fn bytes<T>(v: &Vec<T>) -> usize {
-            v.capacity() * size_of::<T>()
-        }
+        use rebuild::bytes;
         MemoryUse {
             nodes: bytes(&self.nodes)
                 + bytes(&self.churn)
@@ -202,6 +207,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             entries: bytes(&self.proxies) + bytes(&self.free_proxies),
             keys: bytes(&self.keys),
             handles: bytes(&self.stamps),
+            rebuild: self.rebuild_job.as_ref().map_or(0, |job| job.memory()),
         }
     }
 

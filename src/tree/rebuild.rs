@@ -59,6 +59,25 @@ pub(super) struct RebuildJob<const W: usize> {
 }
 
 impl<const W: usize> RebuildJob<W> {
+    /// The bytes this rebuild holds (allocated capacity): the new
+    /// structure, its per-slot tables and the current phase's buffers.
+    pub(super) fn memory(&self) -> usize {
+        let phase = match &self.phase {
+            Phase::Partition { entries, cuts, .. } => bytes(entries) + bytes(cuts),
+            Phase::Fill { entries, above, .. } => bytes(entries) + bytes(above),
+            Phase::Away | Phase::Done { .. } => 0,
+            Phase::CatchUp(catch_up) => catch_up.memory(),
+        };
+        bytes(&self.nodes)
+            + bytes(&self.snapshot_stamps)
+            + bytes(&self.placed)
+            + bytes(&self.leaf_bounds)
+            + bytes(&self.marked)
+            + bytes(&self.is_marked)
+            + bytes(&self.moved_early)
+            + phase
+    }
+
     /// Marks a slot for the swap, once.
     pub(super) fn mark(&mut self, slot: u32) {
         let s = slot as usize;
@@ -555,4 +574,9 @@ fn fill_new_internal<const W: usize>(
         nodes[entry.child as usize].parent = index;
     }
     (index, bound)
+}
+
+/// The allocated capacity of `v`, in bytes.
+pub(super) fn bytes<T>(v: &Vec<T>) -> usize {
+    v.capacity() * std::mem::size_of::<T>()
 }

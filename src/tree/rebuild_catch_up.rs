@@ -89,6 +89,18 @@ pub(super) struct CatchUp<const W: usize> {
 }
 
 impl<const W: usize> CatchUp<W> {
+    /// The bytes the new structure holds (allocated capacity).
+    pub(super) fn memory(&self) -> usize {
+        use super::rebuild::bytes;
+        let s = &*self.structure;
+        bytes(&s.nodes)
+            + bytes(&s.free_nodes)
+            + bytes(&s.proxies)
+            + bytes(&s.churn)
+            + bytes(&s.held_bounds)
+            + s.dirty.memory()
+    }
+
     /// Mirrors a move of the entry in `slot` (which the new structure
     /// holds, checked by the caller) into its new leaf, if its enlarged
     /// box `fat` stays inside that leaf's bound: one lane write, nothing
@@ -192,6 +204,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                     (slot, boxes)
                 })
                 .collect();
+            // The replays go through the tree's own moves, inserts and
+            // removals, which count themselves; they are the rebuild's work,
+            // not the caller's, whose changes were counted as they came.
+            let counted = self.maintenance;
             self.exchange(&mut state.structure);
             if first {
                 // A level whose other nodes lost all their entries while
@@ -204,6 +220,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 self.apply_change(slot, boxes, &mut job.snapshot_stamps);
             }
             self.exchange(&mut state.structure);
+            self.maintenance = counted;
             done += take;
         }
         state.left = job.marked.len();

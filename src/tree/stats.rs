@@ -13,7 +13,9 @@ pub struct QueryStats {
 
 /// Work done by mutations since the tree was created or
 /// [`RTree::take_maintenance_stats`](super::RTree::take_maintenance_stats)
-/// was last called.
+/// was last called. Each change the caller makes is counted once, as it is
+/// made: a rebuild applying the changes made while it was built to its new
+/// structure counts only as its rebuild.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MaintenanceStats {
     /// Entries inserted one by one.
@@ -53,11 +55,16 @@ pub struct MemoryUse {
     pub keys: usize,
     /// The handles' generations.
     pub handles: usize,
+    /// A rebuild in progress ([`RTree::start_rebuild`](super::RTree::start_rebuild)):
+    /// the new structure and its working buffers (0 when none runs, and
+    /// while its tiling runs elsewhere as a
+    /// [`RebuildWork`](super::RebuildWork), which owns that memory).
+    pub rebuild: usize,
 }
 
 impl MemoryUse {
     /// Every part together.
     pub fn total(&self) -> usize {
-        self.nodes + self.entries + self.keys + self.handles
+        self.nodes + self.entries + self.keys + self.handles + self.rebuild
     }
 }
