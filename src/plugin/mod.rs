@@ -350,7 +350,9 @@ impl SpatialAppExt for App {
                             .run_if(resource_changed::<DefaultQueryFilters>),
                         index::sync_main.run_if(any_with_component::<SpatialBounds>),
                     )
-                        .chain()
+                        // The observers may come at the schedule's next sync
+                        // point: no extra one every frame for a rare change.
+                        .chain_ignore_deferred()
                         .in_set(SpatialIndexSystems::Sync),
                 );
             } else {
@@ -361,7 +363,7 @@ impl SpatialAppExt for App {
                             .run_if(resource_changed::<DefaultQueryFilters>),
                         index::sync_layer::<L>.run_if(any_with_component::<L>),
                     )
-                        .chain()
+                        .chain_ignore_deferred()
                         .in_set(SpatialIndexSystems::Sync),
                 );
             }

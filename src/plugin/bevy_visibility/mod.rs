@@ -196,7 +196,9 @@ impl Plugin for BevyVisibilityPlugin {
                             .run_if(resource_changed::<DefaultQueryFilters>),
                         sync::sync_renderables,
                     )
-                        .chain()
+                        // The observers may come at the schedule's next sync
+                        // point: no extra one every frame for a rare change.
+                        .chain_ignore_deferred()
                         .in_set(RenderableSyncSystems),
                     cameras::check_visibility_from_index
                         .in_set(VisibilitySystems::CheckVisibility)
