@@ -203,13 +203,14 @@ fn disabled_entities_leave_every_index_and_come_back_enabled() {
     assert_eq!(indexed_in::<Enemy>(&app), sorted([enemy, asleep]));
 }
 
-/// Disabling components of the app's own (stored in a table and in a sparse
-/// set), registered in the first frame's `Update`, after the startup sync
-/// indexed the entities (Bevy's queries leave them out where the query is
-/// first used after that, as the plugin's `PostUpdate` ones are): an entity
-/// that already carried one leaves the indexes in that frame, one that
-/// gains one leaves at once, and losing it puts the entity back with the
-/// box it has then.
+/// Disabling components of the app's own, registered in the first frame's
+/// `Update`, after the startup sync indexed the entities (Bevy's queries
+/// leave them out where the query is first used after that, as the
+/// plugin's `PostUpdate` ones are): an entity that already carried one
+/// leaves the indexes before that frame's sync and queries, one that gains
+/// one leaves at once, and losing it puts the entity back with the box it
+/// has then. With a table-stored component alone the syncs read table by
+/// table; a sparse one registered too makes every query row by row.
 #[test]
 fn an_apps_own_disabling_components_take_entities_out_and_back() {
     #[derive(Component)]
@@ -217,60 +218,80 @@ fn an_apps_own_disabling_components_take_entities_out_and_back() {
     #[derive(Component)]
     #[component(storage = "SparseSet")]
     struct Asleep;
-    let mut app = app();
-    app.add_spatial_layer::<Enemy>();
-    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
-    let other = app.world_mut().spawn(unit_at(2.0)).id();
-    let frozen_early = app.world_mut().spawn((unit_at(4.0), Enemy, Frozen)).id();
-    app.add_systems(Update, move |world: &mut World, mut done: Local<bool>| {
-        if !*done {
-            assert!(world.resource::<SpatialIndex>().contains(frozen_early));
-            world.register_disabling_component::<Frozen>();
-            world.register_disabling_component::<Asleep>();
-            *done = true;
-        }
-    });
-    app.update();
-    assert_eq!(indexed(&app), sorted([enemy, other]), "already frozen");
-    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
-
-    for (i, sleeper) in [enemy, other].into_iter().enumerate() {
-        let in_layer = sleeper == enemy;
-        if i == 0 {
-            app.world_mut().entity_mut(sleeper).insert(Frozen);
-        } else {
-            app.world_mut().entity_mut(sleeper).insert(Asleep);
-        }
-        let awake = if in_layer { other } else { enemy };
-        assert_eq!(indexed(&app), [awake], "leaving is immediate");
-        if in_layer {
-            assert_eq!(indexed_in::<Enemy>(&app), []);
-        }
-        // It moves while disabled; no sync sees it.
-        let moved = unit_at(10.0 + i as f32);
-        *app.world_mut().get_mut::<SpatialBounds>(sleeper).unwrap() = moved;
+    for sparse_too in [false, true] {
+        let mut app = app();
+        app.add_spatial_layer::<Enemy>();
+        let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+        let other = app.world_mut().spawn(unit_at(2.0)).id();
+        let frozen_early = app.world_mut().spawn((unit_at(4.0), Enemy, Frozen)).id();
+        let eye = app.world_mut().spawn(camera()).id();
+        app.add_systems(Update, move |world: &mut World, mut done: Local<bool>| {
+            if !*done {
+                assert!(world.resource::<SpatialIndex>().contains(frozen_early));
+                world.register_disabling_component::<Frozen>();
+                if sparse_too {
+                    world.register_disabling_component::<Asleep>();
+                }
+                *done = true;
+            }
+        });
         app.update();
-        assert_eq!(indexed(&app), [awake], "a sync does not bring it back");
-        if i == 0 {
-            app.world_mut().entity_mut(sleeper).remove::<Frozen>();
-        } else {
-            app.world_mut().entity_mut(sleeper).remove::<Asleep>();
-        }
-        app.update();
-        assert_eq!(indexed(&app), sorted([enemy, other]));
-        let index = app.world().resource::<SpatialIndex>();
-        assert_eq!(index.get(sleeper), Some(moved.0), "back with its box now");
+        assert_eq!(indexed(&app), sorted([enemy, other]), "already frozen");
         assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+        let mut seen = app
+            .world()
+            .get::<VisibleEntityList>(eye)
+            .unwrap()
+            .entities()
+            .to_vec();
+        seen.sort_unstable();
+        assert_eq!(
+            seen,
+            sorted([enemy, other]),
+            "not seen in the frame it froze"
+        );
+
+        for (i, sleeper) in [enemy, other].into_iter().enumerate() {
+            let sparse = sparse_too && i == 1;
+            let in_layer = sleeper == enemy;
+            if sparse {
+                app.world_mut().entity_mut(sleeper).insert(Asleep);
+            } else {
+                app.world_mut().entity_mut(sleeper).insert(Frozen);
+            }
+            let awake = if in_layer { other } else { enemy };
+            assert_eq!(indexed(&app), [awake], "leaving is immediate");
+            if in_layer {
+                assert_eq!(indexed_in::<Enemy>(&app), []);
+            }
+            // It moves while disabled; no sync sees it.
+            let moved = unit_at(10.0 + i as f32);
+            *app.world_mut().get_mut::<SpatialBounds>(sleeper).unwrap() = moved;
+            app.update();
+            assert_eq!(indexed(&app), [awake], "a sync does not bring it back");
+            if sparse {
+                app.world_mut().entity_mut(sleeper).remove::<Asleep>();
+            } else {
+                app.world_mut().entity_mut(sleeper).remove::<Frozen>();
+            }
+            app.update();
+            assert_eq!(indexed(&app), sorted([enemy, other]));
+            let index = app.world().resource::<SpatialIndex>();
+            assert_eq!(index.get(sleeper), Some(moved.0), "back with its box now");
+            assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+        }
+        if sparse_too {
+            // Both at once: back only when neither is left.
+            app.world_mut().entity_mut(enemy).insert((Frozen, Asleep));
+            app.world_mut().entity_mut(enemy).remove::<Frozen>();
+            app.update();
+            assert_eq!(indexed(&app), [other]);
+            app.world_mut().entity_mut(enemy).remove::<Asleep>();
+            app.update();
+            assert_eq!(indexed(&app), sorted([enemy, other]));
+            assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+        }
     }
-    // Both at once: back only when neither is left.
-    app.world_mut().entity_mut(enemy).insert((Frozen, Asleep));
-    app.world_mut().entity_mut(enemy).remove::<Frozen>();
-    app.update();
-    assert_eq!(indexed(&app), [other]);
-    app.world_mut().entity_mut(enemy).remove::<Asleep>();
-    app.update();
-    assert_eq!(indexed(&app), sorted([enemy, other]));
-    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
 }
 
 #[test]

@@ -266,3 +266,60 @@ fn spatial_bounds_keeps_no_summary_tick() {
     let id = world.register_component::<SpatialBounds>();
     assert!(!world.components().get_info(id).unwrap().summary_tick());
 }
+
+/// A local box changed while the entity was disabled (Bevy's `Disabled`,
+/// or a disabling component of the app's own) is the one it comes back
+/// with: the world boxes' system skipped it meanwhile, as every query
+/// does, and runs on for the other entities.
+#[test]
+fn a_local_box_changed_while_disabled_is_the_one_it_comes_back_with() {
+    use bevy_ecs::entity_disabling::Disabled;
+    #[derive(Component)]
+    struct Frozen;
+    for own in [false, true] {
+        let mut app = app();
+        if own {
+            app.world_mut().register_disabling_component::<Frozen>();
+        }
+        let sleeper = app
+            .world_mut()
+            .spawn((Transform::from_xyz(10.0, 0.0, 0.0), LocalBounds(local())))
+            .id();
+        let awake = app
+            .world_mut()
+            .spawn((Transform::from_xyz(-10.0, 0.0, 0.0), LocalBounds(local())))
+            .id();
+        app.update();
+        if own {
+            app.world_mut().entity_mut(sleeper).insert(Frozen);
+        } else {
+            app.world_mut().entity_mut(sleeper).insert(Disabled);
+        }
+        app.update();
+        let grown = Aabb::new(Vec3::splat(-5.0), Vec3::splat(5.0)).unwrap();
+        app.world_mut().get_mut::<LocalBounds>(sleeper).unwrap().0 = grown;
+        // The other entity moves, so that the world boxes' system runs.
+        for _ in 0..2 {
+            app.world_mut()
+                .get_mut::<Transform>(awake)
+                .unwrap()
+                .translation
+                .y += 1.0;
+            app.update();
+        }
+        if own {
+            app.world_mut().entity_mut(sleeper).remove::<Frozen>();
+        } else {
+            app.world_mut().entity_mut(sleeper).remove::<Disabled>();
+        }
+        app.update();
+        let expected = Aabb::new(Vec3::new(5.0, -5.0, -5.0), Vec3::new(15.0, 5.0, 5.0)).unwrap();
+        let index = app.world().resource::<SpatialIndex>();
+        assert_eq!(index.get(sleeper), Some(expected), "own component {own}");
+        assert_eq!(
+            app.world().get::<SpatialBounds>(sleeper).unwrap().0,
+            expected
+        );
+        index.validate().unwrap();
+    }
+}

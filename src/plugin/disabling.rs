@@ -3,19 +3,27 @@
 //! that carries one out, and so does every index.
 //!
 //! `Disabled` itself is watched by observers the plugins add when they are
-//! built. Other disabling components can be registered at any time, so each
-//! index has a system that looks at Bevy's `DefaultQueryFilters` when it
-//! changes and, for each component it has not seen, spawns an observer that
-//! takes an entity out of the index when it gains the component, and takes
-//! out the entities already indexed that carry it. An entity that loses the
-//! component is read again by the index's next sync (if nothing else
-//! disables it), as after `Disabled`.
+//! built. For the others, each index has a system that looks at Bevy's
+//! `DefaultQueryFilters` when it changes and, for each component it has
+//! not seen, takes out the entities already indexed that carry it and
+//! spawns an observer that takes an entity out of the index when it gains
+//! the component. An entity that loses it is read again by the index's next
+//! sync (if nothing else disables it), as after `Disabled`.
+//!
+//! Register them as Bevy asks, before the app's first update (in a
+//! plugin's `build`, say): a query leaves out only the disabling components
+//! registered before it first ran, and the syncs' queries run from the
+//! first frame on.
 
-use bevy_ecs::component::ComponentId;
+use bevy_ecs::archetype::Archetypes;
+use bevy_ecs::component::{ComponentId, Components};
+use bevy_ecs::entity::Entities;
 use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
 use bevy_ecs::observer::Observer;
 use bevy_ecs::prelude::*;
+use bevy_ecs::world::DeferredWorld;
 
+use super::SpatialBounds;
 use super::diagnostics::DiagnosticsSink;
 use super::index::{self, SpatialIndex};
 
@@ -23,61 +31,60 @@ use super::index::{self, SpatialIndex};
 /// disabling component it is given.
 pub(crate) type ComeBack = fn(ComponentId) -> Observer;
 
+/// What a watcher reads of the world to find the entities of its index
+/// that carry a component.
+type Carriers<'w> = (&'w Entities, &'w Archetypes, &'w Components);
+
 /// The system that keeps `SpatialIndex<L>` watching every disabling
 /// component the app registers; `come_back`, where given, makes the
 /// observer that puts an enabled entity back (one index per entity set
 /// needs it: the main layer's, whose sync every layer follows). Run it
-/// when `DefaultQueryFilters` changed.
+/// when `DefaultQueryFilters` changed, before the index's sync: the
+/// entities that carry a new one leave at once, and its observers are
+/// spawned at the schedule's next sync point.
+#[allow(clippy::type_complexity)]
 pub(crate) fn watch_disabling<L: Component>(
     come_back: Option<ComeBack>,
-) -> impl FnMut(Res<DefaultQueryFilters>, Res<SpatialIndex<L>>, Commands) {
-    move |filters, index, mut commands| {
-        let new: Vec<ComponentId> = filters
-            .disabling_ids()
-            .filter(|id| !index.watched_disabling.contains(id))
-            .collect();
-        if !new.is_empty() {
-            commands.queue(move |world: &mut World| start_watching::<L>(world, &new, come_back));
-        }
-    }
-}
-
-/// Spawns the observers for `ids` (but `Disabled`, which has its own) and
-/// takes out of the index the entities that already carry one of them.
-fn start_watching<L: Component>(
-    world: &mut World,
-    ids: &[ComponentId],
-    come_back: Option<ComeBack>,
+) -> impl FnMut(
+    Res<DefaultQueryFilters>,
+    ResMut<SpatialIndex<L>>,
+    Carriers<'_>,
+    Res<DiagnosticsSink>,
+    Commands,
 ) {
-    let disabled = world.register_component::<Disabled>();
-    world.resource_scope(|world, mut index: Mut<SpatialIndex<L>>| {
-        for &id in ids {
-            // Two systems (the startup sync's and the frame's) may have
-            // asked for the same component before either request ran.
+    move |filters, mut index, (entities, archetypes, components), sink, mut commands| {
+        let disabled = components.component_id::<Disabled>();
+        for id in filters.disabling_ids() {
             if index.watched_disabling.contains(&id) {
                 continue;
             }
             index.watched_disabling.push(id);
-            if id == disabled {
+            if Some(id) == disabled {
                 continue;
             }
-            world.spawn(Observer::new(leave::<L>).with_component(id));
+            commands.spawn(Observer::new(leave::<L>).with_component(id));
             if let Some(come_back) = come_back {
-                world.spawn(come_back(id));
+                commands.spawn(come_back(id));
             }
+            let carries = |entity: Entity| {
+                entities
+                    .get_spawned(entity)
+                    .ok()
+                    .and_then(|at| archetypes.get(at.archetype_id))
+                    .is_some_and(|archetype| archetype.contains(id))
+            };
             let carriers: Vec<Entity> = index
                 .tree()
                 .iter()
                 .map(|(_, entity, _)| entity)
                 .chain(index.unindexed())
-                .filter(|&entity| world.get_entity(entity).is_ok_and(|e| e.contains_id(id)))
+                .filter(|&entity| carries(entity))
                 .collect();
-            let sink = world.resource::<DiagnosticsSink>();
             for entity in carriers {
-                index::remove_from_layer(entity, &mut index, sink);
+                index::remove_from_layer(entity, &mut index, &sink);
             }
         }
-    });
+    }
 }
 
 /// Observer: an entity gained a disabling component, so it leaves the
@@ -90,17 +97,28 @@ fn leave<L: Component>(
     index::remove_from_layer(event.entity, &mut index, &sink);
 }
 
-/// The main layer's [`ComeBack`]: the entity's box is marked changed, so
-/// that the next sync puts it back in every layer it belongs to.
+/// The main layer's [`ComeBack`]: the entity is read again by the next
+/// sync, and so put back in every layer it belongs to.
 pub(crate) fn mark_bounds_changed(id: ComponentId) -> Observer {
-    Observer::new(bounds_changed_on_enable).with_component(id)
+    Observer::new(read_again_on_enable).with_component(id)
 }
 
-/// Observer: marks the box of an entity that loses a disabling component
-/// as changed. The entity still carries the component while the observer
-/// runs, which Bevy's queries would leave out: it is read directly.
-fn bounds_changed_on_enable(event: On<Remove<()>>, mut world: bevy_ecs::world::DeferredWorld) {
-    if let Some(mut bounds) = world.get_mut::<super::SpatialBounds>(event.entity) {
+/// Observer: an entity loses a disabling component.
+fn read_again_on_enable(event: On<Remove<()>>, mut world: DeferredWorld) {
+    read_again(&mut world, event.entity);
+}
+
+/// Marks what the syncs read of an entity coming back (enabled again, or
+/// opted back in) as changed: its box, and where the plugin computes that
+/// from a local box, the local box, which may have changed while the
+/// entity was left out of every query. Read through the world, not a
+/// query, as the entity may still carry the component that leaves it out.
+pub(crate) fn read_again(world: &mut DeferredWorld, entity: Entity) {
+    #[cfg(feature = "bevy")]
+    if let Some(mut local) = world.get_mut::<super::LocalBounds>(entity) {
+        local.set_changed();
+    }
+    if let Some(mut bounds) = world.get_mut::<SpatialBounds>(entity) {
         bounds.set_changed();
     }
 }

@@ -78,7 +78,6 @@ mod transform;
 use bevy_app::prelude::*;
 use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
 use bevy_ecs::prelude::*;
-use bevy_ecs::query::Allow;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
 
 #[cfg(feature = "bevy_camera")]
@@ -487,13 +486,7 @@ fn opt_back_in(event: On<Remove<NoSpatialIndex>>, mut bounds: Query<&mut Spatial
 }
 
 /// Observer: an entity enabled again (Bevy's `Disabled` removed) is put
-/// back on the next sync, by marking its box as changed. It is still
-/// disabled while the observer runs, hence `Allow<Disabled>`.
-fn enabled_again(
-    event: On<Remove<Disabled>>,
-    mut bounds: Query<&mut SpatialBounds, Allow<Disabled>>,
-) {
-    if let Ok(mut bounds) = bounds.get_mut(event.entity) {
-        bounds.set_changed();
-    }
+/// back on the next sync, by marking what the syncs read of it as changed.
+fn enabled_again(event: On<Remove<Disabled>>, mut world: bevy_ecs::world::DeferredWorld) {
+    disabling::read_again(&mut world, event.entity);
 }

@@ -45,6 +45,7 @@ pub struct MaintenanceStats {
 /// The memory a tree holds, in bytes (allocated capacity), by part:
 /// [`RTree::memory`](super::RTree::memory).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct MemoryUse {
     /// The node pool (boxes of every lane, children, order) and the
     /// per-node side tables (churn, held bounds, free list, repair queue).
