@@ -34,14 +34,18 @@ impl<K: Copy> RayResults<K> {
     }
 
     /// The hits of ray `i`, sorted by `(t, key)`: at most one in
-    /// [`RayMode::First`], none in [`RayMode::Any`]. The ray's own error if it
-    /// was invalid. Panics if `i` is out of range.
+    /// [`RayMode::First`], none in [`RayMode::Any`]. The ray's own error if
+    /// it was invalid. Panics if `i` is out of range.
+    ///
+    /// [`RayMode::First`]: crate::RayMode::First
+    /// [`RayMode::Any`]: crate::RayMode::Any
     pub fn hits(&self, i: usize) -> Result<&[RayHit<K>], SpatialError> {
         let (range, _) = self.slots[i].as_ref().map_err(|e| *e)?;
         Ok(&self.hits[range.start as usize..range.end as usize])
     }
 
-    /// The first hit of ray `i` (in any mode but [`RayMode::Any`]).
+    /// The first hit of ray `i` (in any mode but
+    /// [`RayMode::Any`](crate::RayMode::Any)).
     pub fn first(&self, i: usize) -> Result<Option<RayHit<K>>, SpatialError> {
         Ok(self.hits(i)?.first().copied())
     }
