@@ -401,8 +401,10 @@ const PHASES: [&str; 5] = [
 ];
 
 /// The ECS side of the plugin's sync, repeated by `probe_sync`: the three
-/// layers' change-detection scans, and one entity-to-handle lookup per
-/// changed entity in maps shaped like the plugin's (its own are private).
+/// layers' change-detection scans, and, for the two marker layers (the
+/// main layer's handles are kept on the entities), one entity-to-handle
+/// lookup per changed entity in maps shaped like the plugin's (its own are
+/// private).
 #[derive(Resource, Default)]
 struct SyncProbe {
     maps: [EntityHashMap<u32>; 3],
