@@ -99,7 +99,7 @@ fn leave<L: Component>(
 
 /// The main layer's [`ComeBack`]: the entity is read again by the next
 /// sync, and so put back in every layer it belongs to.
-pub(crate) fn mark_bounds_changed(id: ComponentId) -> Observer {
+pub(crate) fn read_again_when_enabled(id: ComponentId) -> Observer {
     Observer::new(read_again_on_enable).with_component(id)
 }
 

@@ -345,7 +345,7 @@ impl SpatialAppExt for App {
                 self.add_systems(
                     schedule,
                     (
-                        disabling::watch_disabling::<L>(Some(disabling::mark_bounds_changed))
+                        disabling::watch_disabling::<L>(Some(disabling::read_again_when_enabled))
                             .run_if(resource_changed::<DefaultQueryFilters>),
                         index::sync_main.run_if(any_with_component::<SpatialBounds>),
                     )
