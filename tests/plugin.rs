@@ -880,3 +880,43 @@ fn casters_ignore_themselves_and_obey_their_filter() {
     assert!(hits(&app, filtered[2]).any());
     assert!(!hits(&app, blind).any(), "only walls and itself on its ray");
 }
+
+/// `SpatialHandle` is a component like any other: an app can remove it
+/// while the entity keeps its box. The entity must go on following its box
+/// in the main index (and leave it when despawned), disabled or not when
+/// the handle went.
+#[test]
+fn an_entity_that_loses_its_handle_still_follows_its_box() {
+    use bevy_ecs::entity_disabling::Disabled;
+    let mut app = app();
+    let mover = app.world_mut().spawn(unit_at(0.0)).id();
+    let sleeper = app.world_mut().spawn(unit_at(10.0)).id();
+    app.update();
+    app.world_mut().entity_mut(mover).remove::<SpatialHandle>();
+    app.world_mut().entity_mut(sleeper).insert(Disabled);
+    app.world_mut()
+        .entity_mut(sleeper)
+        .remove::<SpatialHandle>();
+    app.world_mut().get_mut::<SpatialBounds>(mover).unwrap().0 = unit_at(50.0).0;
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.get(mover), Some(unit_at(50.0).0));
+    assert_eq!(indexed(&app), vec![mover]);
+    let handle = app.world().get::<SpatialHandle>(mover).and_then(|h| h.id());
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.tree().get(handle.unwrap()).unwrap().0, mover);
+
+    app.world_mut().entity_mut(sleeper).remove::<Disabled>();
+    app.world_mut().get_mut::<SpatialBounds>(sleeper).unwrap().0 = unit_at(70.0).0;
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.get(sleeper), Some(unit_at(70.0).0));
+    app.world_mut().get_mut::<SpatialBounds>(sleeper).unwrap().0 = unit_at(80.0).0;
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    assert_eq!(index.get(sleeper), Some(unit_at(80.0).0));
+
+    app.world_mut().despawn(mover);
+    app.update();
+    assert_eq!(indexed(&app), vec![sleeper]);
+}

@@ -373,6 +373,34 @@ pub(crate) fn apply_changes<L: Component>(
     sink.add(|d| d.record_sync(&count));
 }
 
+/// Observer: an entity that loses its [`SpatialHandle`] but keeps its box
+/// gets the handle back, naming its entry in the main index. The main sync
+/// reads the handle with the box, so without one the entity would keep its
+/// last box there for good.
+pub(crate) fn put_handle_back(
+    event: On<Remove<SpatialHandle>>,
+    mut world: bevy_ecs::world::DeferredWorld,
+) {
+    let entity = event.entity;
+    // Read through the world, not a query, so that a disabled entity gets
+    // its handle back too.
+    let keeps_box = world
+        .get_entity(entity)
+        .is_ok_and(|e| e.contains::<SpatialBounds>());
+    if !keeps_box {
+        return;
+    }
+    let id = world
+        .get_resource::<SpatialIndex>()
+        .and_then(|index| index.proxies.get(&entity).copied());
+    // A despawn removes the handle too; the insert then finds no entity
+    // and does nothing.
+    world
+        .commands()
+        .entity(entity)
+        .try_insert(SpatialHandle(id));
+}
+
 /// Observer: an entity lost its box, its layer marker or its place (opt-out
 /// or despawn), so it leaves the index at once.
 pub(crate) fn remove_from_layer<L: Component>(

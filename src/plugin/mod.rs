@@ -244,7 +244,8 @@ impl Plugin for SpatialIndexPlugin {
         )
         .add_systems(Last, diagnostics::publish_diagnostics)
         .add_observer(opt_back_in)
-        .add_observer(enabled_again);
+        .add_observer(enabled_again)
+        .add_observer(index::put_handle_back);
         if self.schedule == PostUpdate.intern() {
             // The boxes of entities spawned at startup are indexed before
             // the first frame, so that the first frame's queries see them.
