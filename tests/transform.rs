@@ -166,6 +166,59 @@ fn a_caster_follows_its_turret_and_does_not_see_itself() {
     assert_eq!(hits.ray().unwrap().origin, Vec3::new(0.0, 50.0, 0.0));
 }
 
+/// A caster on a transform keeps every ray the contract calls valid: a
+/// direction far longer or shorter than one (whose squared length leaves
+/// `f32`) is turned and normalised like any other, and an invalid one is
+/// still reported as invalid. The wall's entry point is known: 5 m ahead.
+#[test]
+fn a_caster_on_a_transform_keeps_valid_extreme_directions() {
+    use bevy_rtree::{Ray, RayMode, SpatialError};
+    let mut app = app();
+    let wall_box = Aabb::new(Vec3::new(5.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0)).unwrap();
+    let wall = app.world_mut().spawn(SpatialBounds(wall_box)).id();
+    let lengths = [1e-30f32, 1e-25, 1e-20, 1.0, 1e20, 1e30];
+    let casters: Vec<Entity> = lengths
+        .iter()
+        .map(|&length| {
+            let ray = Ray::new(Vec3::ZERO, Vec3::Y * length, f32::INFINITY).unwrap();
+            app.world_mut()
+                .spawn((
+                    RayCaster::new(ray, RayMode::First),
+                    // Turned so that local +Y looks down world +X.
+                    Transform::from_rotation(Quat::from_rotation_z(-std::f32::consts::FRAC_PI_2)),
+                ))
+                .id()
+        })
+        .collect();
+    // Only a subnormal direction: invalid (S3), with or without a transform.
+    let subnormal = Ray {
+        origin: Vec3::ZERO,
+        dir: Vec3::X * 1e-40,
+        max_t: 1.0,
+    };
+    let invalid = app
+        .world_mut()
+        .spawn((
+            RayCaster::new(subnormal, RayMode::First),
+            Transform::IDENTITY,
+        ))
+        .id();
+    app.update();
+    for (&caster, length) in casters.iter().zip(lengths) {
+        let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+        assert_eq!(hits.error(), None, "direction of length {length}");
+        let hit = hits.first().expect("the wall ahead is hit");
+        assert_eq!(hit.key, wall, "direction of length {length}");
+        assert!(
+            (hit.t - 5.0).abs() < 1e-4,
+            "t = {} m, length {length}",
+            hit.t
+        );
+    }
+    let hits = app.world().get::<RayCasterHits>(invalid).unwrap();
+    assert_eq!(hits.error(), Some(SpatialError::InvalidRay));
+}
+
 /// The entities whose `SpatialBounds` this frame's world boxes marked
 /// changed, recorded right after they are written.
 #[derive(Resource, Default)]

@@ -273,16 +273,26 @@ type Placement<'a> = ();
 /// The caster's ray in world space: carried by the entity's transform, with
 /// its direction turned (not stretched) and normalised, so that `t` is in
 /// metres and `max_t` keeps its length.
+///
+/// The length is taken in `f64`: in `f32` the squared length of a valid
+/// direction overflows beyond about 1.8e19 and vanishes below about 3.7e-23,
+/// and either turned the caster's valid ray into an invalid one.
 #[cfg(feature = "bevy")]
-fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
+pub(crate) fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
     let Some(transform) = placement else {
         return *ray;
     };
-    let length = ray.dir.length();
+    // An invalid ray stays as it is, to be reported as such; a valid one
+    // loses its subnormal components first, as the index would drop them.
+    let Ok(ray) = ray.canonicalized() else {
+        return *ray;
+    };
+    let dir = ray.dir.as_dvec3();
+    let length = dir.length();
     Ray {
         origin: transform.transform_point(ray.origin),
-        dir: transform.rotation() * (ray.dir / length),
-        max_t: ray.max_t * length,
+        dir: transform.rotation() * (dir / length).as_vec3(),
+        max_t: (f64::from(ray.max_t) * length) as f32,
     }
 }
 
