@@ -13,8 +13,8 @@ use bevy_app::prelude::*;
 use bevy_asset::Assets;
 use bevy_camera::primitives::{Aabb, Sphere};
 use bevy_camera::visibility::{
-    NoCpuCulling, NoFrustumCulling, RenderLayers, ViewVisibility, VisibilityClass, VisibilityRange,
-    VisibleEntities,
+    InheritedVisibility, NoCpuCulling, NoFrustumCulling, RenderLayers, ViewVisibility, Visibility,
+    VisibilityClass, VisibilityRange, VisibleEntities,
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin, OrthographicProjection, Projection};
 use bevy_ecs::change_detection::Tick;
@@ -649,4 +649,57 @@ fn view_visibility_keeps_no_summary_tick() {
     let id = world.register_component::<ViewVisibility>();
     let info = world.components().get_info(id).unwrap();
     assert!(!info.summary_tick());
+}
+
+/// An entity that gets its visibility components after its box is culled
+/// from then on, as Bevy culls it: gaining `InheritedVisibility` and
+/// `ViewVisibility` puts an entity into the set Bevy's culling tests as
+/// much as gaining a box does. Entities spawned with a box and no
+/// visibility get it a few frames later, some lose it and get it back.
+#[test]
+fn entities_that_get_their_visibility_late_are_culled_as_bevy_culls_them() {
+    let mut twins = Twins::new(11);
+    for kind in [0, 0, 4] {
+        twins.spawn_camera(kind);
+    }
+    let spread = 60.0;
+    for _ in 0..600 {
+        let pair = twins.both(|world, rng, _| {
+            world
+                .spawn((
+                    random_transform(rng, spread, (-5.0, 30.0)),
+                    random_aabb(rng),
+                    VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                ))
+                .id()
+        });
+        twins.entities.push(pair);
+    }
+    let mut visible = 0;
+    for frame in 0..12 {
+        let entities = twins.entities.clone();
+        for (i, pair) in entities.iter().enumerate() {
+            twins.both(|world, _, side| {
+                let mut entity = world.entity_mut(pair[side]);
+                match frame {
+                    2 if i % 2 == 0 => {
+                        entity.insert(Visibility::Visible);
+                    }
+                    5 => {
+                        entity.insert(Visibility::Inherited);
+                    }
+                    8 if i % 3 == 0 => {
+                        entity.remove::<(Visibility, InheritedVisibility, ViewVisibility)>();
+                    }
+                    10 if i % 3 == 0 => {
+                        entity.insert(Visibility::Visible);
+                    }
+                    _ => {}
+                }
+            });
+        }
+        twins.update();
+        visible = twins.check(frame);
+    }
+    assert!(visible > 0, "the cameras see some of the entities");
 }

@@ -221,7 +221,8 @@ fn scan_row(item: <Scanned<'_> as QueryData>::Item<'_, '_>, out: &mut Vec<Change
 /// Observers: an entity leaves the index when it loses what Bevy's culling
 /// needs (its box, its transform, its visibility components), gains an
 /// opt-out marker or is disabled (Bevy's `Disabled`), and is read again when
-/// it loses the marker or is enabled.
+/// it loses the marker, is enabled, or gains its visibility components after
+/// its box (the scan sees only a changed box or transform).
 pub(super) fn add_observers(app: &mut bevy_app::App) {
     app.add_observer(leave::<Remove<BevyAabb>>)
         .add_observer(leave::<Remove<GlobalTransform>>)
@@ -232,7 +233,9 @@ pub(super) fn add_observers(app: &mut bevy_app::App) {
         .add_observer(come_back::<Remove<NoCpuCulling>>)
         .add_observer(come_back::<Remove<NoFrustumCulling>>)
         .add_observer(leave::<Add<Disabled>>)
-        .add_observer(come_back::<Remove<Disabled>>);
+        .add_observer(come_back::<Remove<Disabled>>)
+        .add_observer(come_back::<Add<InheritedVisibility>>)
+        .add_observer(come_back::<Add<ViewVisibility>>);
 }
 
 fn leave<P: EventPattern>(
