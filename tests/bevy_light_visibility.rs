@@ -368,3 +368,48 @@ fn lights_see_what_bevy_lights_see_every_frame() {
         index.validate().unwrap();
     }
 }
+
+/// Light probes and clustered decals get their `Aabb` from bevy_light's
+/// own system, through commands, in the frame they are spawned; Bevy's
+/// culling sees that box in the same frame, and so must the index. Probes
+/// spawned in view (and one out of view) frame after frame are visible
+/// exactly when Bevy says they are.
+#[test]
+fn light_probes_are_seen_in_the_frame_they_get_their_box() {
+    use bevy_light::LightProbe;
+    let mut apps = [app(false), app(true)];
+    let mut probes: [Vec<Entity>; 2] = [Vec::new(), Vec::new()];
+    for app in &mut apps {
+        app.world_mut()
+            .spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0)));
+    }
+    for frame in 0..5 {
+        for (app, spawned) in apps.iter_mut().zip(&mut probes) {
+            let ahead = app
+                .world_mut()
+                .spawn((
+                    LightProbe::default(),
+                    Transform::from_xyz(frame as f32, 0.0, 0.0),
+                ))
+                .id();
+            let behind = app
+                .world_mut()
+                .spawn((LightProbe::default(), Transform::from_xyz(0.0, 0.0, 40.0)))
+                .id();
+            spawned.extend([ahead, behind]);
+            app.update();
+        }
+        let [bevy, ours] = [0, 1].map(|side| {
+            probes[side]
+                .iter()
+                .map(|&e| apps[side].world().get::<ViewVisibility>(e).map(|v| v.get()))
+                .collect::<Vec<_>>()
+        });
+        assert_eq!(bevy, ours, "frame {frame}");
+        let expected: Vec<_> = (0..bevy.len()).map(|i| Some(i % 2 == 0)).collect();
+        assert_eq!(
+            bevy, expected,
+            "frame {frame}: probes ahead seen, behind culled"
+        );
+    }
+}

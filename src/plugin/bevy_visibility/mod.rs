@@ -287,5 +287,12 @@ fn add_light_visibility(app: &mut App) {
             // and before the entities no view sees are hidden.
             .after(VisibilitySystems::CheckVisibility)
             .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+    )
+    // bevy_light gives light probes and clustered decals their `Aabb` by
+    // command in this set, which Bevy's culling sees in the same frame: so
+    // must the index.
+    .configure_sets(
+        PostUpdate,
+        RenderableSyncSystems.after(SimulationLightSystems::UpdateBounds),
     );
 }
