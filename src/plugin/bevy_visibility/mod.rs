@@ -152,6 +152,11 @@ impl BevyVisibilitySettings {
 /// their transforms and boxes; it runs after transform propagation and
 /// Bevy's bounds, before `VisibilitySystems::CheckVisibility`.
 ///
+/// A system of the app that writes `GlobalTransform` or `Aabb` (or spawns
+/// or enables renderables) after transform propagation but before Bevy's
+/// culling must run before this set too: Bevy's culling would see its
+/// change in the same frame, and the index only from the next one.
+///
 /// ```
 /// use bevy_app::prelude::*;
 /// use bevy_ecs::prelude::*;
