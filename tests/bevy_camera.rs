@@ -142,3 +142,82 @@ fn following_for_an_unregistered_layer_is_a_clear_error() {
     app.world_mut()
         .spawn(FollowBevyFrustum::<Enemy>::for_layer());
 }
+
+/// The warnings logged while the test runs, kept to be read back.
+struct CapturedWarnings;
+
+static WARNINGS: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
+impl log::Log for CapturedWarnings {
+    fn enabled(&self, metadata: &log::Metadata) -> bool {
+        metadata.level() <= log::Level::Warn
+    }
+    fn log(&self, record: &log::Record) {
+        if self.enabled(record.metadata()) {
+            WARNINGS.lock().unwrap().push(record.args().to_string());
+        }
+    }
+    fn flush(&self) {}
+}
+
+/// The warnings so far that name `entity`.
+fn warnings_about(entity: bevy_ecs::entity::Entity) -> usize {
+    let name = entity.to_string();
+    let all = WARNINGS.lock().unwrap();
+    all.iter().filter(|w| w.starts_with(&name)).count()
+}
+
+/// With the index in `Update`, before Bevy's first frustum update, a new
+/// camera's Bevy frustum is still the default one: it gets its culling
+/// camera once Bevy has computed a frustum, with no warning meanwhile. A
+/// frustum that is not finite keeps the last culling frustum and is
+/// warned about once.
+#[test]
+fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
+    use bevy_ecs::schedule::ScheduleLabel;
+    static INSTALL: std::sync::Once = std::sync::Once::new();
+    INSTALL.call_once(|| {
+        log::set_logger(&CapturedWarnings).expect("no other logger in this test binary");
+        log::set_max_level(log::LevelFilter::Warn);
+    });
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin {
+        schedule: Update.intern(),
+        ..SpatialIndexPlugin::default()
+    });
+    let transform = Transform::from_xyz(0.0, 2.0, 10.0);
+    let camera = app
+        .world_mut()
+        .spawn((
+            BevyFrustum::default(),
+            GlobalTransform::from(transform),
+            FollowBevyFrustum::default(),
+        ))
+        .id();
+    app.update();
+    assert!(app.world().get::<CullingCamera>(camera).is_none());
+    assert_eq!(
+        warnings_about(camera),
+        0,
+        "no warning before Bevy's frustum"
+    );
+    *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = bevy_frustum(&transform);
+    app.update();
+    let followed = app
+        .world()
+        .get::<CullingCamera>(camera)
+        .expect("following now");
+    let expected =
+        bevy_rtree::Frustum::from_bevy(&bevy_frustum(&transform), transform.translation).unwrap();
+    assert_eq!(followed.frustum, expected);
+    assert_eq!(warnings_about(camera), 0);
+    // Not finite: warned about once, the last frustum kept.
+    let broken = bevy_frustum(&Transform::from_xyz(f32::NAN, 2.0, 10.0));
+    for _ in 0..3 {
+        *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = broken;
+        app.update();
+    }
+    assert_eq!(warnings_about(camera), 1);
+    let kept = app.world().get::<CullingCamera>(camera).unwrap();
+    assert_eq!(kept.frustum, expected);
+}

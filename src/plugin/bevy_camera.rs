@@ -9,7 +9,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::reflect::ReflectComponent;
 use bevy_ecs::schedule::InternedScheduleLabel;
 use bevy_transform::prelude::GlobalTransform;
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 use std::marker::PhantomData;
 
@@ -153,6 +153,16 @@ fn follow_bevy_frustums<L: Component>(
     mut warned: Local<bevy_ecs::entity::EntityHashSet>,
 ) {
     for (entity, frustum, global, follow, culling) in &mut cameras {
+        // Bevy's frustum as its required component makes it, before Bevy's
+        // first `UpdateFrusta` (the index's schedule may run before it, as
+        // `Update` does): nothing to follow yet, and nothing to warn of.
+        if frustum
+            .half_spaces
+            .iter()
+            .all(|h| h.normal_d() == Vec4::ZERO)
+        {
+            continue;
+        }
         let Some(converted) = convert(frustum, global.translation()) else {
             if warned.insert(entity) {
                 log::warn!(
