@@ -489,3 +489,63 @@ fn large_batches_match_single_rays_in_every_mode() {
         }
     }
 }
+
+/// The hard cases above mostly run along an axis, where a direction
+/// component of zero sends the walk to the four-lane test; these run
+/// diagonally, so that the wide lane tests (AVX, AVX-512) take them too,
+/// at widths 4, 8 and 16. Each answer is known exactly.
+#[test]
+fn diagonal_hard_cases_are_exact_on_every_lane_test() {
+    let far = common::aabb([1e7, 0.0, 0.0], [1e7 + 1.0, 1.0, 1.0]);
+    let point = common::aabb([2.0, 2.0, 2.0], [2.0, 2.0, 2.0]);
+    // Key 0 is the unit box, 1 the far box, 2 the point box.
+    let cases = [
+        // The corner (0, 0, 0) reached exactly at max_t, then one ulp short.
+        (ray([-1.0; 3], [1.0; 3], 1.0), Some((0, 1.0))),
+        (ray([-1.0; 3], [1.0; 3], 1f32.next_down()), None),
+        // Far from the origin: (1e7, 0.5, 0.5) at t = 100 exactly.
+        (
+            ray([1e7 - 100.0, -99.5, -99.5], [1.0; 3], f32::INFINITY),
+            Some((1, 100.0)),
+        ),
+        // A point box touched at t = 1 from the far side.
+        (ray([3.0; 3], [-1.0; 3], f32::INFINITY), Some((2, 1.0))),
+        // Along the face z = 1 of the unit box, sinking into it by 1e-30
+        // a metre: inside from t = 1; then one ulp of 1 above the face.
+        (
+            ray([-1.0, -1.0, 1.0], [1.0, 1.0, -1e-30], 10.0),
+            Some((0, 1.0)),
+        ),
+        (
+            ray([-1.0, -1.0, 1f32.next_up()], [1.0, 1.0, -1e-30], 10.0),
+            None,
+        ),
+        // Rising out of it by 1e-30 a metre: outside for every t > 0.
+        (ray([-1.0, -1.0, 1.0], [1.0, 1.0, 1e-30], 10.0), None),
+    ];
+    let first = |tree_hit: Option<RayHit<u32>>| tree_hit.map(|h| (h.key, h.t));
+    let mut ws = QueryWorkspace::default();
+    for (r, expected) in cases {
+        let (tree4, oracle) = unit_world::<4>(&[far, point]);
+        let (tree8, _) = unit_world::<8>(&[far, point]);
+        let (tree16, _) = unit_world::<16>(&[far, point]);
+        assert_eq!(
+            first(tree4.cast_ray(&r, &mut ws).unwrap()),
+            expected,
+            "{r:?}, width 4"
+        );
+        assert_eq!(
+            first(tree8.cast_ray(&r, &mut ws).unwrap()),
+            expected,
+            "{r:?}, width 8"
+        );
+        assert_eq!(
+            first(tree16.cast_ray(&r, &mut ws).unwrap()),
+            expected,
+            "{r:?}, width 16"
+        );
+        check_rays(&tree4, &oracle, &[r]);
+        check_rays(&tree8, &oracle, &[r]);
+        check_rays(&tree16, &oracle, &[r]);
+    }
+}
