@@ -24,8 +24,8 @@ use bevy_mesh::skinning::SkinnedMeshInverseBindposes;
 use bevy_mesh::{Mesh, Mesh3d};
 use bevy_random::{random_aabb, random_transform, random_visibility};
 use bevy_rtree::plugin::{
-    BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, SpatialDiagnostics, SpatialIndex,
-    SpatialIndexPlugin,
+    BevyVisibilityPlugin, BevyVisibilitySettings, Renderable, RenderableHandle, SpatialDiagnostics,
+    SpatialIndex, SpatialIndexPlugin,
 };
 use bevy_rtree::scene::SceneRng;
 use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
@@ -702,4 +702,49 @@ fn entities_that_get_their_visibility_late_are_culled_as_bevy_culls_them() {
         visible = twins.check(frame);
     }
     assert!(visible > 0, "the cameras see some of the entities");
+}
+
+/// Where entities with a box existed before the plugin, Bevy refuses the
+/// handle as a required component of `Aabb`, and no entity gets one: an
+/// entity given its visibility after its box is still culled as Bevy culls
+/// it (observers stand in for the handle's hook).
+#[test]
+fn late_visibility_is_seen_where_no_entity_gets_the_handle() {
+    let mut apps = [app(false), app(false)];
+    let mut late = Vec::new();
+    for app in &mut apps {
+        app.world_mut().spawn((
+            Mesh3d::default(),
+            Aabb::from_min_max(Vec3::splat(-40.0), Vec3::splat(-39.0)),
+            Transform::default(),
+        ));
+        app.world_mut()
+            .spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 20.0)));
+    }
+    apps[1].add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
+    for app in &mut apps {
+        app.update();
+        let entity = app
+            .world_mut()
+            .spawn((
+                Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+                Transform::default(),
+                VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+            ))
+            .id();
+        app.update();
+        app.world_mut()
+            .entity_mut(entity)
+            .insert(Visibility::Visible);
+        app.update();
+        app.update();
+        late.push(entity);
+    }
+    assert!(apps[1].world().get::<RenderableHandle>(late[1]).is_none());
+    let seen: Vec<Option<bool>> = apps
+        .iter()
+        .zip(&late)
+        .map(|(app, &e)| app.world().get::<ViewVisibility>(e).map(|v| v.get()))
+        .collect();
+    assert_eq!(seen, vec![Some(true), Some(true)]);
 }

@@ -920,3 +920,20 @@ fn an_entity_that_loses_its_handle_still_follows_its_box() {
     app.update();
     assert_eq!(indexed(&app), vec![sleeper]);
 }
+
+/// A removal that takes the box and the handle together (`clear`) leaves
+/// the entity without either: the handle is put back only on an entity
+/// that keeps its box.
+#[test]
+fn a_cleared_entity_gets_no_handle_back() {
+    let mut app = app();
+    let cleared = app.world_mut().spawn(unit_at(0.0)).id();
+    let kept = app.world_mut().spawn(unit_at(5.0)).id();
+    app.update();
+    app.world_mut().entity_mut(cleared).clear();
+    app.world_mut().entity_mut(kept).remove::<SpatialHandle>();
+    app.update();
+    assert!(app.world().get::<SpatialHandle>(cleared).is_none());
+    assert!(app.world().get::<SpatialHandle>(kept).is_some());
+    assert_eq!(indexed(&app), vec![kept]);
+}

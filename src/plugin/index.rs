@@ -377,28 +377,22 @@ pub(crate) fn apply_changes<L: Component>(
 /// gets the handle back, naming its entry in the main index. The main sync
 /// reads the handle with the box, so without one the entity would keep its
 /// last box there for good.
-pub(crate) fn put_handle_back(
-    event: On<Remove<SpatialHandle>>,
-    mut world: bevy_ecs::world::DeferredWorld,
-) {
+pub(crate) fn put_handle_back(event: On<Remove<SpatialHandle>>, mut commands: Commands) {
     let entity = event.entity;
-    // Read through the world, not a query, so that a disabled entity gets
-    // its handle back too.
-    let keeps_box = world
-        .get_entity(entity)
-        .is_ok_and(|e| e.contains::<SpatialBounds>());
-    if !keeps_box {
-        return;
-    }
-    let id = world
-        .get_resource::<SpatialIndex>()
-        .and_then(|index| index.proxies.get(&entity).copied());
-    // A despawn removes the handle too; the insert then finds no entity
-    // and does nothing.
-    world
-        .commands()
-        .entity(entity)
-        .try_insert(SpatialHandle(id));
+    // Decided once the removal is done (observers of `Remove` run before
+    // it): a despawn, or a removal that takes the box too (`clear`,
+    // `retain`), leaves nothing to put the handle on.
+    commands.queue(move |world: &mut World| {
+        let id = world
+            .get_resource::<SpatialIndex>()
+            .and_then(|index| index.proxies.get(&entity).copied());
+        if let Ok(mut kept) = world.get_entity_mut(entity)
+            && kept.contains::<SpatialBounds>()
+            && !kept.contains::<SpatialHandle>()
+        {
+            kept.insert(SpatialHandle(id));
+        }
+    });
 }
 
 /// Observer: an entity lost its box, its layer marker or its place (opt-out

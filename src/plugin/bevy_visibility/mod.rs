@@ -179,10 +179,13 @@ impl Plugin for BevyVisibilityPlugin {
                  app.add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))"
             );
         };
-        // Entities with an `Aabb` spawned before this plugin keep their
-        // archetype, which a required component cannot change: they go
-        // without the handle, and their entries are looked up instead.
-        let _ = app.try_register_required_components::<BevyAabb, RenderableHandle>();
+        // Bevy refuses a new required component once an archetype holds
+        // `Aabb` (entities with a box spawned before this plugin): then no
+        // entity gets the handle, their entries are looked up instead, and
+        // observers stand in for the handle's hook (see `sync::Resync`).
+        let handles_kept = app
+            .try_register_required_components::<BevyAabb, RenderableHandle>()
+            .is_ok();
         app.insert_resource(SpatialIndex::<Renderable>::new(config.tree))
             .init_resource::<sync::Resync>()
             .init_resource::<BevyVisibilitySettings>()
@@ -231,7 +234,7 @@ impl Plugin for BevyVisibilityPlugin {
                 ),
             );
         }
-        sync::add_observers(app);
+        sync::add_observers(app, handles_kept);
         super::register_layer_queries::<Renderable>(app, &config);
         // Bevy's systems this one replaces are taken out as the app starts,
         // not here: taking a system out initializes its schedule, and every

@@ -44,7 +44,8 @@ pub(super) struct Resync {
     /// Entities with a box but without `InheritedVisibility` or
     /// `ViewVisibility` (given the box first, or the components taken
     /// away): each sync reads again those that have both now, which the
-    /// scan would not, their box and transform unchanged. Usually none.
+    /// scan would not, their box and transform unchanged, and forgets the
+    /// despawned. Usually none; at most each live entity once.
     waiting: Vec<Entity>,
 }
 
@@ -149,6 +150,8 @@ pub(super) fn sync_renderables(
 ) {
     let mut again = std::mem::take(&mut resync.again);
     if !resync.waiting.is_empty() {
+        resync.waiting.sort_unstable();
+        resync.waiting.dedup();
         resync.waiting.retain(|&entity| {
             if members.contains(entity) {
                 again.push(entity);
@@ -245,7 +248,15 @@ fn scan_row(item: <Scanned<'_> as QueryData>::Item<'_, '_>, out: &mut Vec<Change
 /// opt-out marker or is disabled (Bevy's `Disabled`), and is read again when
 /// it loses the marker, is enabled, or gains its visibility components after
 /// its box (the scan sees only a changed box or transform).
-pub(super) fn add_observers(app: &mut bevy_app::App) {
+///
+/// Where Bevy refused the handle as a required component of `Aabb`
+/// (`handles_kept` false), observers of the visibility components' arrival
+/// note what the handle's hook would have.
+pub(super) fn add_observers(app: &mut bevy_app::App, handles_kept: bool) {
+    if !handles_kept {
+        app.add_observer(visible_now::<InheritedVisibility>)
+            .add_observer(visible_now::<ViewVisibility>);
+    }
     app.add_observer(leave::<Remove<BevyAabb>>)
         .add_observer(leave::<Remove<GlobalTransform>>)
         .add_observer(invisible::<InheritedVisibility>)
@@ -292,6 +303,19 @@ fn invisible<C: Component>(
 ) {
     index::remove_from_layer(event.entity, &mut index, &sink);
     resync.waiting.push(event.entity);
+}
+
+/// Observer, where entities do not get the handle: an entity that gains a
+/// visibility component `C` with its box already there waits to be read
+/// (one that gets its box later is found by the scan then).
+fn visible_now<C: Component>(
+    event: On<Add<C>>,
+    boxes: Query<(), With<BevyAabb>>,
+    mut resync: ResMut<Resync>,
+) {
+    if boxes.contains(event.entity) {
+        resync.waiting.push(event.entity);
+    }
 }
 
 /// Hook of [`RenderableHandle`], which comes with Bevy's `Aabb`: an
