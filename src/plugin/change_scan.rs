@@ -1,11 +1,11 @@
-//! Bevy's `Changed` and `Added` tests over a table's change ticks, a few
-//! rows at a time.
+//! Bevy's `Changed` and `Added` tests over a table's change ticks, a block
+//! of rows at a time.
 //!
 //! The syncs scan every indexed entity each frame for the few that moved.
 //! Through Bevy's row-by-row iteration each row costs a call and a branch;
-//! a table's tick slices (Bevy's contiguous queries) are compared eight
-//! rows at a time in a loop the compiler turns into vector instructions,
-//! and only a run of rows with a change is looked at row by row.
+//! here a table's tick slices (Bevy's contiguous queries) are compared in
+//! loops of fixed length the compiler turns into vector instructions, 64
+//! rows become one bit mask, and only the rows of its set bits are visited.
 
 use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
 
