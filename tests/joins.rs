@@ -73,6 +73,20 @@ proptest! {
         }
     }
 
+    /// A tree joined with itself (the same object on both sides, as a
+    /// system holding one layer may call it) gives the oracle's pairs once
+    /// each: every ordered pair of distinct keys within reach.
+    #[test]
+    fn a_cross_join_of_a_tree_with_itself_matches_the_oracle(
+        boxes in prop::collection::vec(common::grid_box(), 0..250),
+        d in distance(),
+    ) {
+        let (tree, oracle, _) = build::<4>(&boxes, 0);
+        for mode in MODES {
+            prop_assert_eq!(tree.cross_join(&tree, d, mode).unwrap(), oracle.cross_join(&oracle, d, mode).unwrap());
+        }
+    }
+
     #[test]
     fn moved_joins_report_exactly_the_pairs_of_moved_entries(
         boxes in prop::collection::vec(common::grid_box(), 1..200),

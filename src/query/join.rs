@@ -236,9 +236,9 @@ pub(super) fn join_lane_pairs<const W: usize>(
         // Each lane meets the lanes above it only: each unordered pair once.
         let above = |i: usize| lanes & !((2u32 << i) - 1);
         return if na.is_leaf() {
-            lane_pairs::<W, true>(na, lanes, na, above, true, test, ws, masks, emit)
+            lane_pairs::<W, true>(na, lanes, na, above, true, true, test, ws, masks, emit)
         } else {
-            lane_pairs::<W, false>(na, lanes, na, above, true, test, ws, masks, emit)
+            lane_pairs::<W, false>(na, lanes, na, above, true, true, test, ws, masks, emit)
         };
     }
     let a_lanes = masks(na, region, na.used_lanes());
@@ -254,7 +254,9 @@ pub(super) fn join_lane_pairs<const W: usize>(
         // enemies against barrels the counts differ, and the cross join took
         // 16 % longer without it.
         let all_of_nb = |_| nb.used_lanes();
-        return lane_pairs::<W, true>(na, a_lanes, nb, all_of_nb, true, test, ws, masks, emit);
+        return lane_pairs::<W, true>(
+            na, a_lanes, nb, all_of_nb, true, false, test, ws, masks, emit,
+        );
     }
     let b_lanes = masks(nb, region, nb.used_lanes());
     // The side with fewer lanes near the other goes outside: each of its
@@ -274,6 +276,7 @@ pub(super) fn join_lane_pairs<const W: usize>(
             inner,
             inner_lanes,
             a_outside,
+            false,
             test,
             ws,
             masks,
@@ -286,6 +289,7 @@ pub(super) fn join_lane_pairs<const W: usize>(
             inner,
             inner_lanes,
             a_outside,
+            false,
             test,
             ws,
             masks,
@@ -299,8 +303,12 @@ pub(super) fn join_lane_pairs<const W: usize>(
 /// in the groups of lanes that hold such lanes ([`Node::overlap_mask_among`]:
 /// after a join's region test a leaf keeps about two of its lanes, so most
 /// groups of four hold none). `outer_is_a` tells which node is `na`, so
-/// that either can go outside. With `outer` and `inner` the same internal
-/// node, each child is also paired with itself.
+/// that either can go outside. `same_node` says that `outer` and `inner`
+/// are one node of a self join ([`NodePair::Same`]): each child of an
+/// internal node is then also paired with itself. It is told, not found by
+/// comparing addresses: a cross join of a tree with itself pairs a node
+/// with itself too, and there every child already meets itself among its
+/// partners.
 ///
 /// Two passes: the first tests every outer lane and only records its mask,
 /// the second visits the lanes that have any partner. Most lanes have none
@@ -322,13 +330,13 @@ fn lane_pairs<const W: usize, const LEAVES: bool>(
     inner: &Node<W>,
     inner_lanes: impl Fn(usize) -> u32,
     outer_is_a: bool,
+    same_node: bool,
     test: JoinTest,
     ws: &mut QueryWorkspace,
     masks: impl LaneMasks<W>,
     mut emit: impl FnMut(usize, usize) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     let a_b = |o: u32, n: u32| if outer_is_a { (o, n) } else { (n, o) };
-    let same_node = std::ptr::eq(outer, inner);
     let mut partners = [0u32; W];
     let mut with_partners = 0u32;
     let mut lanes = outer_lanes;
