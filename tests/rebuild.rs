@@ -578,3 +578,76 @@ fn a_rebuild_counts_replayed_changes_once_and_its_memory_until_the_swap() {
     assert_eq!(stats.rebuilds, 1, "{stats:?}");
     assert_eq!(tree.memory().rebuild, 0);
 }
+
+/// `Duration::MAX` reads as "no limit": the rebuild goes as far as one call
+/// takes it and is swapped in, where adding it to the clock overflowed.
+#[test]
+fn a_budget_without_limit_finishes_the_rebuild() {
+    let scene = TownScene::new(3_000, 33);
+    let (mut tree, ids) = scene.bulk_loaded_tree();
+    for &id in &ids[..1_000] {
+        tree.remove(id).unwrap();
+    }
+    assert!(tree.is_worn());
+    tree.start_rebuild();
+    let mut calls = 0;
+    while !tree.step_rebuild(Duration::MAX) {
+        calls += 1;
+        assert!(calls < 10, "not swapped in");
+    }
+    tree.validate().unwrap();
+    assert!(!tree.rebuild_pending());
+    assert!(!tree.is_worn());
+    // And a tree worn again rebuilds through the frame-by-frame call too.
+    for &id in &ids[1_000..2_000] {
+        tree.remove(id).unwrap();
+    }
+    let mut frames = 0;
+    while !tree.rebuild_when_worn(Duration::MAX) {
+        frames += 1;
+        assert!(frames < 10, "not swapped in");
+    }
+    tree.validate().unwrap();
+    assert_eq!(tree.len(), 1_000);
+}
+
+/// A bulk insert into a tree with a rebuild under way retiles every entry
+/// itself, so the rebuild is dropped: swapping its older tiling in would
+/// insert every new entry into it one by one and leave the tree worn.
+#[test]
+fn a_bulk_insert_during_a_rebuild_drops_the_rebuild() {
+    let scene = TownScene::new(2_000, 34);
+    let (mut tree, _) = scene.bulk_loaded_tree();
+    tree.start_rebuild();
+    tree.step_rebuild_units(3);
+    assert!(tree.rebuild_pending());
+    let mut rng = SceneRng::new(35);
+    let added: Vec<(u32, Aabb)> = (0..3_000u32)
+        .map(|i| (10_000 + i, cube(rng.point_in_world(), 1.0)))
+        .collect();
+    let ids = tree.insert_bulk(added.iter().copied()).unwrap();
+    tree.validate().unwrap();
+    assert!(!tree.rebuild_pending());
+    assert!(!tree.is_worn());
+    // Nothing is left to swap in, and every new handle names its entry.
+    assert!(!tree.step_rebuild_units(1_000));
+    for (id, (key, aabb)) in ids.iter().zip(&added) {
+        assert_eq!(tree.get(*id).unwrap(), (*key, *aabb));
+    }
+    assert_eq!(tree.len(), 5_000);
+}
+
+/// While the tiling runs elsewhere, the tree counts only what it keeps to
+/// note the changes made meanwhile: far less than the structure itself,
+/// which the work owns.
+#[test]
+fn a_rebuild_away_counts_only_its_notes() {
+    let scene = TownScene::new(5_000, 36);
+    let (mut tree, _) = scene.bulk_loaded_tree();
+    tree.start_rebuild();
+    let work = tree.take_rebuild_work().unwrap();
+    let memory = tree.memory();
+    assert!(memory.rebuild > 0, "{memory:?}");
+    assert!(memory.rebuild < memory.nodes / 8, "{memory:?}");
+    drop(work);
+}

@@ -47,6 +47,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if self.proxies.is_empty() {
             return Ok(self.load_fresh(entries));
         }
+        // This retiles every entry, as `rebuild` does: a rebuild under way
+        // would swap in the tiling from before and then insert every new
+        // entry into it one by one.
+        self.rebuild_job = None;
         let mut ids = Vec::with_capacity(entries.len());
         let mut level_entries = self.live_entries_in_leaf_order();
         for (key, aabb) in entries {
@@ -269,7 +273,10 @@ fn levels_to_one_root(mut nodes: usize, width: usize) -> u32 {
 /// The entries of group `g` when `n` entries are split into `groups` groups
 /// as evenly as possible (sizes differ by at most one).
 pub(super) fn group_range(n: usize, groups: usize, g: usize) -> std::ops::Range<usize> {
-    (n * g / groups)..(n * (g + 1) / groups)
+    // In u64: `n * g` passes 2^32 from about 250,000 entries, where `usize`
+    // is 32 bits wide (wasm32).
+    let at = |g: usize| (n as u64 * g as u64 / groups as u64) as usize;
+    at(g)..at(g + 1)
 }
 
 /// Orders `entries` so that `group_range(len, groups, g)` is a spatially
@@ -393,6 +400,30 @@ mod tests {
         tree.insert(20_000, between).unwrap();
         tree.validate().unwrap();
         assert_eq!(tree.node_count(), nodes);
+    }
+
+    /// The groups hold every entry once, sizes differing by at most one,
+    /// up to the most entries a 32-bit `usize` can count, where `n * g`
+    /// overflows 32 bits (checked here against `u128` arithmetic).
+    #[test]
+    fn group_ranges_split_evenly_without_overflow() {
+        for n in [0usize, 1, 15, 16, 300_000, u32::MAX as usize] {
+            for groups in [1usize, 2, 7, 16, 21_429] {
+                let mut next = 0;
+                for g in [0, 1, groups / 2, groups - 1] {
+                    let range = group_range(n, groups, g);
+                    let exact = |g: usize| (n as u128 * g as u128 / groups as u128) as usize;
+                    assert_eq!(range, exact(g)..exact(g + 1), "{n} {groups} {g}");
+                    assert!(range.len() == n / groups || range.len() == n / groups + 1);
+                    if g == 0 {
+                        next = range.end;
+                    } else if g == 1 {
+                        assert_eq!(range.start, next);
+                    }
+                }
+                assert_eq!(group_range(n, groups, groups - 1).end, n);
+            }
+        }
     }
 
     #[test]

@@ -221,9 +221,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// for while it was away (at most eight): at the first step after work
     /// that took a frame. Returns `true` when it is swapped in;
     /// `false` while work remains or when no rebuild is under way.
+    /// A budget too long for the clock (`Duration::MAX`) has no deadline:
+    /// the rebuild goes as far as one call takes it.
     pub fn step_rebuild(&mut self, budget: Duration) -> bool {
-        let deadline = Instant::now() + budget;
-        self.step_rebuild_until(usize::MAX, Some(deadline))
+        let deadline = Instant::now().checked_add(budget);
+        self.step_rebuild_until(usize::MAX, deadline)
     }
 
     /// Keeps the tiling as good as fresh within `budget` a call: starts a
@@ -240,7 +242,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// 6 % more (maintenance 0.29 → 0.60 ms a frame); where 1 % of the
     /// entries teleport or respawn every frame, a rebuild that takes tens
     /// of frames meets many of them changed by the swap, and the tree
-    /// stays 45–60 % above fresh. The plugin does not call it by default.
+    /// stays 45–60 % above fresh. The plugin keeps its trees fresh through
+    /// its own path instead (`RebuildMode`, feature `plugin`).
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};

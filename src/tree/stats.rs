@@ -57,9 +57,10 @@ pub struct MemoryUse {
     /// The handles' generations.
     pub handles: usize,
     /// A rebuild in progress ([`RTree::start_rebuild`](super::RTree::start_rebuild)):
-    /// the new structure and its working buffers (0 when none runs, and
-    /// while its tiling runs elsewhere as a
-    /// [`RebuildWork`](super::RebuildWork), which owns that memory).
+    /// the new structure and its working buffers (0 when none runs). While
+    /// its tiling runs elsewhere as a [`RebuildWork`](super::RebuildWork),
+    /// which owns the structure, this counts only what the tree keeps to
+    /// note the changes made meanwhile (a few bytes a slot).
     pub rebuild: usize,
 }
 
