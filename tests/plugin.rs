@@ -677,6 +677,55 @@ fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
     assert_eq!(diagnostics(&app).invalid_total, 3);
 }
 
+/// Disabling an entity whose box is invalid, or opting it out, and taking
+/// it back reads the same box again: it stays out of the index and is not
+/// warned about again. A box taken away and set invalid again is a new one.
+#[test]
+fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
+    use bevy_ecs::entity_disabling::Disabled;
+    let _ = log::set_logger(&CAPTURED);
+    log::set_max_level(log::LevelFilter::Warn);
+    let mut app = app();
+    // An id no other test of this binary reaches.
+    for i in 0..6_000 {
+        app.world_mut().spawn(unit_at(i as f32));
+    }
+    let bad = app.world_mut().spawn(SpatialBounds(Aabb::INVERTED)).id();
+    let warnings = || {
+        CAPTURED
+            .0
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|line| line.starts_with(&format!("{bad} ")))
+            .count()
+    };
+    app.update();
+    assert_eq!(warnings(), 1);
+    for _ in 0..2 {
+        app.world_mut().entity_mut(bad).insert(Disabled);
+        app.update();
+        app.world_mut().entity_mut(bad).remove::<Disabled>();
+        app.update();
+        app.world_mut().entity_mut(bad).insert(NoSpatialIndex);
+        app.update();
+        app.world_mut().entity_mut(bad).remove::<NoSpatialIndex>();
+        app.update();
+        assert!(!indexed(&app).contains(&bad));
+        let index = app.world().resource::<SpatialIndex>();
+        assert!(index.unindexed().any(|e| e == bad), "left out for its box");
+    }
+    assert_eq!(warnings(), 1, "warned once");
+    // A new box, invalid again: a new warning.
+    app.world_mut().entity_mut(bad).remove::<SpatialBounds>();
+    app.update();
+    app.world_mut()
+        .entity_mut(bad)
+        .insert(SpatialBounds(Aabb::INVERTED));
+    app.update();
+    assert_eq!(warnings(), 2);
+}
+
 #[test]
 fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
     let mut app = app();

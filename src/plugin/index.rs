@@ -395,18 +395,30 @@ pub(crate) fn put_handle_back(event: On<Remove<SpatialHandle>>, mut commands: Co
     });
 }
 
-/// Observer: an entity lost its box, its layer marker or its place (opt-out
-/// or despawn), so it leaves the index at once.
+/// Observer: an entity lost its layer marker or its place (opt-out,
+/// disabled), so it leaves the index at once. A warning about its box
+/// stands: the same box read again when it comes back is not warned about
+/// twice.
 pub(crate) fn remove_from_layer<L: Component>(
     entity: Entity,
     index: &mut SpatialIndex<L>,
     sink: &DiagnosticsSink,
 ) {
-    // Gone for good (or until it returns as a new entity): forget that it
-    // was warned about, so the set stays as small as the live bad entities.
-    index.warned.remove(&entity);
     index.unindexed.remove(&entity);
     if index.remove(entity) {
         sink.add(|d| d.sync.removed += 1);
     }
+}
+
+/// Observer: an entity lost its box (a despawn too), so it leaves the
+/// index at once; a box it gets later is a new one, warned about if it is
+/// invalid. Forgetting here keeps the warned set as small as the entities
+/// that hold a bad box.
+pub(crate) fn remove_box<L: Component>(
+    entity: Entity,
+    index: &mut SpatialIndex<L>,
+    sink: &DiagnosticsSink,
+) {
+    index.warned.remove(&entity);
+    remove_from_layer(entity, index, sink);
 }

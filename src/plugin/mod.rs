@@ -369,10 +369,15 @@ impl SpatialAppExt for App {
             }
         }
         self.add_observer(
+            // The main layer's marker is its box.
             |event: On<Remove<L>>,
              mut index: ResMut<SpatialIndex<L>>,
              sink: Res<DiagnosticsSink>| {
-                index::remove_from_layer(event.entity, &mut index, &sink);
+                if index::is_main_layer::<L>() {
+                    index::remove_box(event.entity, &mut index, &sink);
+                } else {
+                    index::remove_from_layer(event.entity, &mut index, &sink);
+                }
             },
         )
         .add_observer(
@@ -395,7 +400,7 @@ impl SpatialAppExt for App {
                 |event: On<Remove<SpatialBounds>>,
                  mut index: ResMut<SpatialIndex<L>>,
                  sink: Res<DiagnosticsSink>| {
-                    index::remove_from_layer(event.entity, &mut index, &sink);
+                    index::remove_box(event.entity, &mut index, &sink);
                 },
             );
         }

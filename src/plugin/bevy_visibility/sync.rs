@@ -257,8 +257,8 @@ pub(super) fn add_observers(app: &mut bevy_app::App, handles_kept: bool) {
         app.add_observer(visible_now::<InheritedVisibility>)
             .add_observer(visible_now::<ViewVisibility>);
     }
-    app.add_observer(leave::<Remove<BevyAabb>>)
-        .add_observer(leave::<Remove<GlobalTransform>>)
+    app.add_observer(box_lost::<Remove<BevyAabb>>)
+        .add_observer(box_lost::<Remove<GlobalTransform>>)
         .add_observer(invisible::<InheritedVisibility>)
         .add_observer(invisible::<ViewVisibility>)
         .add_observer(leave::<Add<NoCpuCulling>>)
@@ -267,6 +267,17 @@ pub(super) fn add_observers(app: &mut bevy_app::App, handles_kept: bool) {
         .add_observer(come_back::<Remove<NoFrustumCulling>>)
         .add_observer(leave::<Add<Disabled>>)
         .add_observer(come_back::<Remove<Disabled>>);
+}
+
+/// The entity's box is gone (its `Aabb` or its transform, a despawn too).
+fn box_lost<P: EventPattern>(
+    event: On<P>,
+    mut index: ResMut<SpatialIndex<Renderable>>,
+    sink: Res<DiagnosticsSink>,
+) where
+    P::Event: EntityEvent,
+{
+    index::remove_box(event.event_target(), &mut index, &sink);
 }
 
 fn leave<P: EventPattern>(
