@@ -112,6 +112,11 @@ use diagnostics::DiagnosticsSink;
 /// Every index is an [`RTree`](crate::RTree) of the default width keyed by
 /// [`Entity`].
 ///
+/// The plugin's resources ([`SpatialIndex<L>`](SpatialIndex),
+/// [`SpatialJoin<A, B>`](SpatialJoin), [`SpatialDiagnostics`]) live as long
+/// as the App, as those of Bevy's own plugins do: its systems and observers
+/// expect them and fail, as Bevy's do, if one is removed.
+///
 /// ```
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::TreeSettings;
@@ -132,7 +137,12 @@ pub struct SpatialIndexPlugin {
     /// propagation) come first. A system in `Update` then queries the boxes
     /// as the last frame ended, as it reads `GlobalTransform`; with
     /// `PostUpdate`, the entities spawned at startup are also indexed in
-    /// `PostStartup`, so the first frame's queries see them.
+    /// `PostStartup`, so the first frame's queries see them. In a schedule
+    /// before transform propagation (`Update`), world boxes from
+    /// `LocalBounds` and casters on a transform read the `GlobalTransform`
+    /// the last propagation wrote: an entity spawned earlier in the same
+    /// frame still has the default one, so for that frame it is indexed
+    /// (or casts) at the origin.
     pub schedule: InternedScheduleLabel,
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
     /// repair in any one frame.
