@@ -37,7 +37,8 @@ pub enum SpatialError {
     /// A count that must be positive was zero (for example `k = 0` nearest).
     InvalidCount,
     /// A [`ProxyId`](crate::ProxyId) that does not name a live entry of this
-    /// index (never issued, already removed, or from another index).
+    /// index (never issued, already removed, or from another index where
+    /// it names none of this one's live entries: see `ProxyId`).
     UnknownProxy,
     /// A setting outside its documented range (for example a negative margin).
     InvalidSettings,
