@@ -183,6 +183,34 @@ fn a_face_on_the_plane_from_outside_is_culled_and_one_ulp_inside_is_visible() {
     }
 }
 
+/// A plane whose offset is tiny beside its normal (1e-30 beside 1e30) is
+/// stored scaled so that the offset falls into `f32`'s subnormals or below:
+/// a point on the plane's zero set through the eye keeps the offset's
+/// sign, as the plane in `f64` says (there, `1e30 * 0 + 1e-30 > 0`).
+#[test]
+fn an_offset_tiny_beside_its_normal_keeps_what_the_plane_keeps() {
+    let at_eye = common::aabb([0.0; 3], [0.0; 3]);
+    let i = HalfSpace::INACTIVE;
+    for (offset, kept) in [(1e-30f32, true), (1e-38, true), (-1e-30, false)] {
+        let plane = HalfSpace {
+            normal: Vec3::new(1e30, 0.0, 0.0),
+            offset,
+        };
+        // Ground truth in f64, without the crate: the box's p-vertex is
+        // the eye itself.
+        let truth = 1e30f64 * 0.0 + offset as f64 > 0.0;
+        assert_eq!(truth, kept);
+        let view = Frustum::new(Vec3::ZERO, [plane, i, i, i, i, i]).unwrap();
+        assert_eq!(view.intersects_conservative(&at_eye), kept, "{offset:e}");
+        let (tree, oracle) = with_distractors(&[at_eye]);
+        for mode in [CullMode::Conservative, CullMode::Exact] {
+            let visible = tree.visible(&view, mode);
+            assert_eq!(visible.contains(&0), kept, "{offset:e} {mode:?}");
+            assert_eq!(visible, oracle.visible(&view, mode));
+        }
+    }
+}
+
 #[test]
 fn the_conservative_false_positive_and_its_removal_in_exact_mode() {
     // Looking down -z, 90 degree fov, square: inside iff |x|, |y| < -z and

@@ -42,8 +42,11 @@ impl HalfSpace {
     /// `(0.5, 1]` (the offset given in `f64`, so that re-basing it on an eye
     /// cannot overflow first).
     ///
-    /// Scaling by a power of two is exact, so every plane value the culling
-    /// test computes is exactly scaled too and no answer changes; but with
+    /// Scaling by a power of two is exact (but for a normal component or
+    /// offset so much smaller than the largest component that it scales
+    /// into `f32`'s subnormals; such an offset is rounded upward), so every
+    /// plane value the culling test computes is exactly scaled too and no
+    /// answer changes; but with
     /// normals of that size the products `n·(p - eye)` of any point of the
     /// world can neither overflow (a normal of 1e30) nor lose their
     /// precision in subnormals (a normal of 1e-40). An offset so large that
@@ -72,7 +75,16 @@ impl HalfSpace {
         } else if scaled < -(f32::MAX as f64) {
             -f32::MAX
         } else {
-            scaled as f32
+            // Upward where `f32` cannot hold it (an offset re-based on an
+            // eye in `f64`, or one scaled into the subnormals, as an offset
+            // of 1e-30 beside a normal of 1e30): the plane then keeps a
+            // little more, never less, so a conservative cull stays so.
+            let rounded = scaled as f32;
+            if (rounded as f64) < scaled {
+                rounded.next_up()
+            } else {
+                rounded
+            }
         };
         HalfSpace {
             normal: (normal.as_dvec3() * scale).as_vec3(),
@@ -152,7 +164,9 @@ impl Frustum {
     }
 
     /// A checked frustum from world-space planes `dot(n, p) + d > 0`, re-based
-    /// on `eye` (the offsets are converted in `f64`).
+    /// on `eye` (the offsets are converted in `f64`, and rounded upward where
+    /// `f32` cannot hold the result, so that no point the world plane keeps
+    /// is lost).
     pub fn from_world_planes(eye: Vec3, planes: [(Vec3, f32); 6]) -> Result<Frustum, SpatialError> {
         let rebased = planes.map(|(normal, d)| {
             if normal == Vec3::ZERO && d == f32::INFINITY {
