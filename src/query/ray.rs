@@ -131,9 +131,10 @@ impl RayWalkScratch {
 }
 
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
-    /// The visitor core for one ray: calls `visit(key, t, )` for hits with
-    /// `t <= limit`, where the limit starts at `ray.max_t` and becomes
-    /// whatever `visit` returns in `Continue(limit)`; `Break` stops.
+    /// The visitor core for one ray: calls `visit(key, t)` for hits with
+    /// `t <= limit`, where the limit starts at `ray.max_t` and becomes the
+    /// smaller of itself and what `visit` returns in `Continue(limit)` (it
+    /// only shrinks: pruned nodes are not visited again); `Break` stops.
     /// Nodes are visited near to far and pruned when their entry `t` is
     /// beyond the limit, so equal-`t` ties are still seen.
     pub fn visit_ray<F>(
