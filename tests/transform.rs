@@ -101,6 +101,42 @@ fn unusable_transforms_take_the_entity_out_and_are_counted() {
     }
 }
 
+/// A tiny scale whose determinant underflows `f32` (1e-16 on every axis,
+/// so 1e-48) collapses no axis: the entity keeps a box around the exact
+/// image of its corners (checked in `f64`), and nothing is counted.
+#[test]
+fn a_tiny_scale_is_not_a_collapsed_axis() {
+    let mut app = app();
+    let scale = Vec3::splat(1e-16);
+    assert_eq!(scale.x * scale.y * scale.z, 0.0, "underflows in f32");
+    let e = app
+        .world_mut()
+        .spawn((
+            Transform::from_xyz(5.0, 0.0, 0.0)
+                .with_scale(scale)
+                .with_rotation(Quat::from_rotation_y(0.3)),
+            LocalBounds(local()),
+        ))
+        .id();
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    let world = index.get(e).expect("indexed");
+    index.validate().unwrap();
+    let global = app.world().get::<GlobalTransform>(e).unwrap().affine();
+    for corner in common::corners(&local()) {
+        let m = global.matrix3.as_dmat3();
+        let exact = m * corner.as_dvec3() + global.translation.as_dvec3();
+        for axis in 0..3 {
+            assert!(world.min[axis] as f64 <= exact[axis] && exact[axis] <= world.max[axis] as f64);
+        }
+    }
+    assert!(world.max.x - world.min.x < 1e-6, "{world:?}");
+    assert_eq!(
+        app.world().resource::<SpatialDiagnostics>().invalid_total,
+        0
+    );
+}
+
 /// A caster on a moving, turning, scaled turret casts from the turret each
 /// frame, not from the world origin: its local ray follows the
 /// `GlobalTransform` (the scale stretches nothing), `t` is in metres, the

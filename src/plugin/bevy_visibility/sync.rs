@@ -101,7 +101,9 @@ impl RenderableHandle {
 /// inverted box, which the index refuses and counts.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     let affine = transform.affine();
-    if affine.matrix3.determinant() == 0.0 {
+    // In f64: in f32 a scale of 1e-16 on each axis (a valid, tiny box)
+    // gives a determinant that underflows to zero.
+    if affine.matrix3.as_dmat3().determinant() == 0.0 {
         return Aabb::INVERTED;
     }
     let center = Vec3::from(aabb.center);
