@@ -331,7 +331,8 @@ impl Model {
     }
 }
 
-/// `steps` random steps per profile, checked after each.
+/// `steps` random steps per profile (more if no rebuild was swapped in by
+/// then), checked after each.
 fn soak(steps: usize, seed: u64) {
     for (p, profile) in PROFILES.into_iter().enumerate() {
         let settings = TreeSettings {
@@ -348,7 +349,13 @@ fn soak(steps: usize, seed: u64) {
             rng: SceneRng::new(seed + p as u64),
         };
         let mut swaps = 0;
-        for step in 0..steps {
+        // On until a rebuild was swapped in, up to four times the steps:
+        // the operations that drop a rebuild under way (a bulk insert, a
+        // clear, a cancel) can take every one of a short run's.
+        for step in 0..steps * 4 {
+            if step >= steps && swaps > 0 {
+                break;
+            }
             model.step();
             swaps += model.tree.take_maintenance_stats().rebuilds;
             // Keep the size around a few hundred entries.

@@ -612,7 +612,7 @@ fn a_budget_without_limit_finishes_the_rebuild() {
 }
 
 /// A bulk insert into a tree with a rebuild under way retiles every entry
-/// itself, so the rebuild is dropped: swapping its older tiling in would
+/// itself (an empty one does nothing), so the rebuild is dropped: swapping its older tiling in would
 /// insert every new entry into it one by one and leave the tree worn.
 #[test]
 fn a_bulk_insert_during_a_rebuild_drops_the_rebuild() {
@@ -620,6 +620,9 @@ fn a_bulk_insert_during_a_rebuild_drops_the_rebuild() {
     let (mut tree, _) = scene.bulk_loaded_tree();
     tree.start_rebuild();
     tree.step_rebuild_units(3);
+    assert!(tree.rebuild_pending());
+    // Nothing to insert: nothing retiled, the rebuild goes on.
+    assert_eq!(tree.insert_bulk(std::iter::empty()).unwrap(), Vec::new());
     assert!(tree.rebuild_pending());
     let mut rng = SceneRng::new(35);
     let added: Vec<(u32, Aabb)> = (0..3_000u32)

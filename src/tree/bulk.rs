@@ -47,6 +47,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if self.proxies.is_empty() {
             return Ok(self.load_fresh(entries));
         }
+        if entries.is_empty() {
+            return Ok(Vec::new());
+        }
         // This retiles every entry, as `rebuild` does: a rebuild under way
         // would swap in the tiling from before and then insert every new
         // entry into it one by one.
