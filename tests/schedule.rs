@@ -176,3 +176,61 @@ fn a_query_in_the_first_update_sees_the_entities_spawned_at_startup() {
     );
     app.world().resource::<SpatialIndex>().validate().unwrap();
 }
+
+/// The sync in `PostStartup` and the one in `PostUpdate` are two systems
+/// of one index: the first frame's starts where the startup one ended, so
+/// the startup boxes are neither applied again as moves nor an invalid one
+/// counted twice; a box changed in the first frame's `Update` is still seen.
+#[test]
+fn the_first_frame_does_not_sync_the_startup_boxes_again() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default())
+        .add_spatial_layer::<Enemy>()
+        .add_systems(Startup, |mut commands: Commands| {
+            let unit = Aabb::new(Vec3::ZERO, Vec3::ONE).unwrap();
+            for i in 0..50 {
+                let at = Vec3::X * i as f32;
+                commands.spawn(SpatialBounds(Aabb::new(at, at + Vec3::ONE).unwrap()));
+            }
+            commands.spawn((SpatialBounds(unit), Enemy));
+            commands.spawn(SpatialBounds(Aabb::INVERTED));
+        });
+    #[derive(Resource)]
+    struct Moved(Option<Entity>);
+    app.insert_resource(Moved(None)).add_systems(
+        Update,
+        |mut moved: ResMut<Moved>,
+         mut enemies: Query<(Entity, &mut SpatialBounds), With<Enemy>>| {
+            if moved.0.is_none() {
+                for (entity, mut bounds) in &mut enemies {
+                    bounds.0 =
+                        Aabb::new(Vec3::Y * 10.0, Vec3::splat(1.0) + Vec3::Y * 10.0).unwrap();
+                    moved.0 = Some(entity);
+                }
+            }
+        },
+    );
+    app.update();
+    let diagnostics = *app.world().resource::<SpatialDiagnostics>();
+    assert_eq!(diagnostics.invalid_total, 1, "{diagnostics:?}");
+    // The enemy alone, in the main index and in its layer's.
+    assert_eq!(
+        diagnostics.sync.updated, 2,
+        "only the enemy moved: {diagnostics:?}"
+    );
+    let enemy = app.world().resource::<Moved>().0.unwrap();
+    for boxes in [
+        app.world().resource::<SpatialIndex>().get(enemy),
+        app.world().resource::<SpatialIndex<Enemy>>().get(enemy),
+    ] {
+        assert_eq!(boxes.unwrap().min.y, 10.0);
+    }
+    app.world().resource::<SpatialIndex>().validate().unwrap();
+    assert_eq!(app.world().resource::<SpatialIndex>().len(), 51);
+    app.update();
+    let diagnostics = *app.world().resource::<SpatialDiagnostics>();
+    assert_eq!(
+        (diagnostics.sync.updated, diagnostics.invalid_total),
+        (0, 1)
+    );
+}

@@ -3,9 +3,11 @@
 
 use std::marker::PhantomData;
 
+use bevy_ecs::change_detection::{CheckChangeTicks, Tick};
 use bevy_ecs::component::ComponentId;
 use bevy_ecs::entity::{EntityHashMap, EntityHashSet};
 use bevy_ecs::prelude::*;
+use bevy_ecs::system::SystemChangeTick;
 
 use super::bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
 use super::change_scan::ChangeTest;
@@ -56,6 +58,11 @@ pub struct SpatialIndex<L: Component = SpatialBounds> {
     generation: u64,
     /// The disabling components whose observers serve this index.
     pub(crate) watched_disabling: Vec<ComponentId>,
+    /// When a sync of this index last ran. Its sync runs as two systems
+    /// (in `PostStartup` and in the plugin's schedule), each with a change
+    /// tick of its own; the index's own tick lets the second start where
+    /// the first ended, instead of reading every startup box again.
+    synced_at: Option<Tick>,
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -69,6 +76,7 @@ impl<L: Component> SpatialIndex<L> {
             unindexed: EntityHashSet::default(),
             generation: 0,
             watched_disabling: Vec::new(),
+            synced_at: None,
             _layer: PhantomData,
         }
     }
@@ -134,6 +142,23 @@ impl<L: Component> SpatialIndex<L> {
         self.unindexed.iter().copied()
     }
 
+    /// The change test of a sync of this index running with `ticks`: the
+    /// changes since the last sync of the index by any system, and this
+    /// run noted as the next one's start.
+    fn sync_test(&mut self, ticks: &SystemChangeTick) -> (Tick, Tick) {
+        let since = self.synced_at.unwrap_or(ticks.last_run());
+        self.synced_at = Some(ticks.this_run());
+        (since, ticks.this_run())
+    }
+
+    /// Keeps the last sync's tick from growing so old that it wraps, as
+    /// Bevy keeps its systems' ticks (on [`CheckChangeTicks`]).
+    pub(crate) fn check_ticks(&mut self, check: CheckChangeTicks) {
+        if let Some(tick) = &mut self.synced_at {
+            tick.check_tick(check);
+        }
+    }
+
     /// Takes `entity` out of the index if it is there.
     pub(crate) fn remove(&mut self, entity: Entity) -> bool {
         match self.proxies.remove(&entity) {
@@ -173,15 +198,17 @@ pub(crate) fn sync_layer<L: Component>(
     members: Query<LayerRow<'_, L>, Without<NoSpatialIndex>>,
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
+    ticks: SystemChangeTick,
 ) {
     let scratch = &mut *scratch;
     let mut changed = std::mem::take(&mut scratch.changed);
     changed.clear();
+    let (since, now) = index.sync_test(&ticks);
+    let test = ChangeTest::new(since, now);
     // Table by table where the query can be read so (a marker or a
     // disabling component stored in a sparse set makes it row by row).
     match members.contiguous_iter() {
         Ok(tables) => tables.for_each(|(entities, bounds, marker)| {
-            let test = ChangeTest::new(bounds.last_run_tick(), bounds.this_run_tick());
             let columns = [bounds.changed_ticks_slice(), marker.added_ticks_slice()];
             test.for_each_changed(columns, |row| {
                 changed.push((entities[row], bounds[row].0, None));
@@ -190,7 +217,9 @@ pub(crate) fn sync_layer<L: Component>(
         Err(_) => changed.extend(
             members
                 .iter()
-                .filter(|(_, bounds, marker)| bounds.is_changed() || marker.is_added())
+                .filter(|(_, bounds, marker)| {
+                    test.newer(&bounds.last_changed()) || test.newer(&marker.added())
+                })
                 .map(|(entity, bounds, _)| (entity, bounds.0, None)),
         ),
     }
@@ -215,14 +244,16 @@ pub(crate) fn sync_main(
     )>,
     mut scratch: Local<SyncScratch>,
     sink: Res<DiagnosticsSink>,
+    ticks: SystemChangeTick,
 ) {
     let scratch = &mut *scratch;
     let mut changed = std::mem::take(&mut scratch.changed);
     changed.clear();
+    let (since, now) = index.sync_test(&ticks);
+    let test = ChangeTest::new(since, now);
     let scanned = members.p0();
     match scanned.contiguous_iter() {
         Ok(tables) => tables.for_each(|(entities, bounds, handles)| {
-            let test = ChangeTest::new(bounds.last_run_tick(), bounds.this_run_tick());
             test.for_each_changed([bounds.changed_ticks_slice()], |row| {
                 changed.push((entities[row], bounds[row].0, handles[row].0));
             });
@@ -230,7 +261,7 @@ pub(crate) fn sync_main(
         Err(_) => changed.extend(
             scanned
                 .iter()
-                .filter(|(_, bounds, _)| bounds.is_changed())
+                .filter(|(_, bounds, _)| test.newer(&bounds.last_changed()))
                 .map(|(entity, bounds, handle)| (entity, bounds.0, handle.0)),
         ),
     }

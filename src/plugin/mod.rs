@@ -76,6 +76,7 @@ mod raycast;
 mod transform;
 
 use bevy_app::prelude::*;
+use bevy_ecs::change_detection::CheckChangeTicks;
 use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel};
@@ -403,6 +404,11 @@ impl SpatialAppExt for App {
              mut index: ResMut<SpatialIndex<L>>,
              sink: Res<DiagnosticsSink>| {
                 index::remove_from_layer(event.entity, &mut index, &sink);
+            },
+        )
+        .add_observer(
+            |check: On<CheckChangeTicks>, mut index: ResMut<SpatialIndex<L>>| {
+                index.check_ticks(*check);
             },
         );
         if !index::is_main_layer::<L>() {
