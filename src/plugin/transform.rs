@@ -118,9 +118,9 @@ fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
 /// by the index) where the transform collapses an axis or is not finite.
 fn world_box(local: &LocalBounds, global: &GlobalTransform) -> Aabb {
     let affine = global.affine();
-    // In f64: in f32 a scale of 1e-16 on each axis (a valid, tiny box)
-    // gives a determinant that underflows to zero.
-    if affine.matrix3.as_dmat3().determinant() == 0.0 {
+    // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
+    // (a valid, tiny box) gives a determinant that underflows f32.
+    if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
         return Aabb::INVERTED;
     }
     local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)

@@ -101,9 +101,9 @@ impl RenderableHandle {
 /// inverted box, which the index refuses and counts.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     let affine = transform.affine();
-    // In f64: in f32 a scale of 1e-16 on each axis (a valid, tiny box)
-    // gives a determinant that underflows to zero.
-    if affine.matrix3.as_dmat3().determinant() == 0.0 {
+    // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
+    // (a valid, tiny box) gives a determinant that underflows f32.
+    if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
         return Aabb::INVERTED;
     }
     let center = Vec3::from(aabb.center);
