@@ -748,3 +748,37 @@ fn late_visibility_is_seen_where_no_entity_gets_the_handle() {
         .collect();
     assert_eq!(seen, vec![Some(true), Some(true)]);
 }
+
+/// A tiny scale (1e-16 on every axis, whose determinant underflows `f32`)
+/// collapses no axis: such entities are indexed like any other, and seen
+/// as Bevy sees them.
+#[test]
+fn entities_of_a_tiny_scale_are_indexed_and_seen_as_bevy_sees_them() {
+    let mut twins = Twins::new(13);
+    twins.spawn_camera(0);
+    for i in 0..200 {
+        let pair = twins.both(|world, rng, _| {
+            let mut transform = random_transform(rng, 40.0, (-5.0, 30.0));
+            if i % 2 == 0 {
+                transform.scale = Vec3::splat(1e-16);
+            }
+            world
+                .spawn((
+                    transform,
+                    random_aabb(rng),
+                    Visibility::Visible,
+                    VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                ))
+                .id()
+        });
+        twins.entities.push(pair);
+    }
+    for frame in 0..3 {
+        twins.update();
+        twins.check(frame);
+    }
+    let index = twins.ours.world().resource::<SpatialIndex<Renderable>>();
+    index.validate().unwrap();
+    assert_eq!(index.unindexed().count(), 0);
+    assert_eq!(index.len(), 200);
+}

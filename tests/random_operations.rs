@@ -350,8 +350,8 @@ fn soak(steps: usize, seed: u64) {
         };
         let mut swaps = 0;
         // On until a rebuild was swapped in, up to four times the steps:
-        // the operations that drop a rebuild under way (a bulk insert, a
-        // clear, a cancel) can take every one of a short run's.
+        // in a short run, the operations that drop a rebuild under way (a
+        // bulk insert, `rebuild`, a clear, a cancel) can drop every one.
         for step in 0..steps * 4 {
             if step >= steps && swaps > 0 {
                 break;

@@ -42,11 +42,12 @@ impl HalfSpace {
     /// `(0.5, 1]` (the offset given in `f64`, so that re-basing it on an eye
     /// cannot overflow first).
     ///
-    /// Scaling by a power of two is exact (but for a normal component or
-    /// offset so much smaller than the largest component that it scales
-    /// into `f32`'s subnormals; such an offset is rounded upward), so every
-    /// plane value the culling test computes is exactly scaled too and no
-    /// answer changes; but with
+    /// Scaling by a power of two is exact, so every plane value the culling
+    /// test computes is exactly scaled too and no answer changes, except
+    /// where a normal component or the offset is so much smaller than the
+    /// largest component that it scales into `f32`'s subnormals: there an
+    /// offset is rounded upward (the plane keeps a little more) and a
+    /// normal component to nearest. With
     /// normals of that size the products `n·(p - eye)` of any point of the
     /// world can neither overflow (a normal of 1e30) nor lose their
     /// precision in subnormals (a normal of 1e-40). An offset so large that
@@ -165,8 +166,8 @@ impl Frustum {
 
     /// A checked frustum from world-space planes `dot(n, p) + d > 0`, re-based
     /// on `eye` (the offsets are converted in `f64`, and rounded upward where
-    /// `f32` cannot hold the result, so that no point the world plane keeps
-    /// is lost).
+    /// `f32` cannot hold the result: the stored offset is never below the
+    /// re-based one).
     pub fn from_world_planes(eye: Vec3, planes: [(Vec3, f32); 6]) -> Result<Frustum, SpatialError> {
         let rebased = planes.map(|(normal, d)| {
             if normal == Vec3::ZERO && d == f32::INFINITY {

@@ -16,10 +16,11 @@ use crate::geometry::Aabb;
 /// A box that is not valid (NaN, infinite, inverted, beyond
 /// [`MAX_COORD`](crate::MAX_COORD)) takes the entity *out* of the index until
 /// it gets a valid box again: an entity whose position is unknown is found by
-/// no query. A warning names the entity once per box it is given: not
-/// again when the box is set invalid again, nor when the entity is disabled
-/// or opted out and comes back with it, but again after the component was
-/// removed and inserted anew.
+/// no query. A warning names the entity once per `SpatialBounds`
+/// component: not again when the box is set invalid again, nor when the
+/// entity is disabled or opted out and comes back with it, but again after
+/// the component was removed and inserted anew (a `LocalBounds` removed
+/// and inserted again keeps its `SpatialBounds`, and its warning).
 /// [`SpatialDiagnostics`](crate::plugin::SpatialDiagnostics) counts every
 /// time the sync skips an invalid box (each time one is set, and when an
 /// entity comes back with one).

@@ -18,8 +18,9 @@ const BLOCK: usize = 64;
 const BYTE: usize = 8;
 
 /// The test a system's `Changed<T>` filter applies to a tick: newer than the
-/// system's last run, as seen from this run (ticks wrap, and ages are capped
-/// at `MAX_CHANGE_AGE` the way Bevy caps them).
+/// system's last run (or another start, such as an index's last sync), as
+/// seen from this run (ticks wrap, and ages are capped at `MAX_CHANGE_AGE`
+/// the way Bevy caps them).
 #[derive(Clone, Copy)]
 pub(crate) struct ChangeTest {
     this_run: u32,

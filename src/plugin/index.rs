@@ -145,10 +145,10 @@ impl<L: Component> SpatialIndex<L> {
     /// The change test of a sync of this index running with `ticks`: the
     /// changes since the last sync of the index by any system, and this
     /// run noted as the next one's start.
-    fn sync_test(&mut self, ticks: &SystemChangeTick) -> (Tick, Tick) {
+    fn sync_test(&mut self, ticks: &SystemChangeTick) -> ChangeTest {
         let since = self.synced_at.unwrap_or(ticks.last_run());
         self.synced_at = Some(ticks.this_run());
-        (since, ticks.this_run())
+        ChangeTest::new(since, ticks.this_run())
     }
 
     /// Keeps the last sync's tick from growing so old that it wraps, as
@@ -203,8 +203,7 @@ pub(crate) fn sync_layer<L: Component>(
     let scratch = &mut *scratch;
     let mut changed = std::mem::take(&mut scratch.changed);
     changed.clear();
-    let (since, now) = index.sync_test(&ticks);
-    let test = ChangeTest::new(since, now);
+    let test = index.sync_test(&ticks);
     // Table by table where the query can be read so (a marker or a
     // disabling component stored in a sparse set makes it row by row).
     match members.contiguous_iter() {
@@ -249,8 +248,7 @@ pub(crate) fn sync_main(
     let scratch = &mut *scratch;
     let mut changed = std::mem::take(&mut scratch.changed);
     changed.clear();
-    let (since, now) = index.sync_test(&ticks);
-    let test = ChangeTest::new(since, now);
+    let test = index.sync_test(&ticks);
     let scanned = members.p0();
     match scanned.contiguous_iter() {
         Ok(tables) => tables.for_each(|(entities, bounds, handles)| {

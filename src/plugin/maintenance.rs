@@ -151,8 +151,8 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
             return tree.step_rebuild(Duration::ZERO);
         }
         let work = bevy_tasks::block_on(away.task.take().unwrap());
-        // Refused only if the rebuild was cancelled meanwhile; a worn
-        // tree starts another.
+        // Refused if the rebuild was dropped meanwhile (a bulk insert of
+        // a spawn wave retiles the tree itself); a worn tree starts another.
         tree.finish_rebuild_work(work);
     }
     #[cfg(not(feature = "parallel"))]

@@ -15,9 +15,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Much faster than inserting one by one and gives a better tree; existing
     /// handles stay valid. Into an empty tree, leaves are packed full; into
     /// one that holds entries, this is a rebuild, and leaves keep room for
-    /// two more entries as [`RTree::rebuild`] leaves them. Parents keep
+    /// two more entries as [`RTree::rebuild`] leaves them, and a rebuild
+    /// under way is dropped, as `rebuild` drops it. Parents keep
     /// room for more leaves (14 of 16 at the default width) where that adds
-    /// no level, for the splits the first frames of movement bring.
+    /// no level, for the splits the first frames of movement bring. An
+    /// empty `entries` changes nothing.
     ///
     /// All boxes are checked first: if any is invalid, nothing is inserted
     /// and the error is returned.
@@ -407,9 +409,15 @@ mod tests {
 
     /// The groups hold every entry once, sizes differing by at most one,
     /// up to the most entries a 32-bit `usize` can count, where `n * g`
-    /// overflows 32 bits (checked here against `u128` arithmetic).
+    /// overflows 32 bits (checked here against `u128` arithmetic). The
+    /// overflow itself only shows on a 32-bit target (`--target
+    /// i686-unknown-linux-gnu`, wasm32); on a 64-bit one this checks the
+    /// ranges the 64-bit arithmetic gives.
     #[test]
     fn group_ranges_split_evenly_without_overflow() {
+        // Cases where 32 bits overflow: `n * g` past `u32::MAX`.
+        assert!(300_000u32.checked_mul(21_428).is_none());
+        assert!(u32::MAX.checked_mul(2).is_none());
         for n in [0usize, 1, 15, 16, 300_000, u32::MAX as usize] {
             for groups in [1usize, 2, 7, 16, 21_429] {
                 let mut next = 0;

@@ -15,9 +15,8 @@ use super::node::NIL;
 /// A handle means something only to the tree that issued it, as a key of
 /// a slot map does: given to another tree, it is refused where it names
 /// none of that tree's live entries, and otherwise taken for the entry in
-/// that slot. Keep each tree's handles with it. (Telling trees apart in
-/// every handle made handles half as large again, and a frame's batch of
-/// moves measurably slower to gather.) Either way nothing panics and the
+/// that slot. Keep each tree's handles with it (why handles do not name
+/// their tree: docs/performance.md). Either way nothing panics and the
 /// tree stays valid.
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 // Opaque: a handle is only meaningful as the index issued it.

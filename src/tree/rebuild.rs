@@ -152,7 +152,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// [`RTree::rebuild`] makes it (except that an entry that moved while
     /// it ran keeps the enlarged box the tree gave it, with the stretch of
     /// its motion). Handles stay valid and answers never change, before,
-    /// during and after the swap.
+    /// during and after the swap. [`RTree::rebuild`], a non-empty
+    /// [`RTree::insert_bulk`] and [`RTree::clear`] retile or empty the tree
+    /// themselves and drop a rebuild under way.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
@@ -222,7 +224,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// that took a frame. Returns `true` when it is swapped in;
     /// `false` while work remains or when no rebuild is under way.
     /// A budget too long for the clock (`Duration::MAX`) has no deadline:
-    /// the rebuild goes as far as one call takes it.
+    /// the call finishes the rebuild and swaps it in, unless its tiling is
+    /// away on another thread ([`RTree::take_rebuild_work`]).
     pub fn step_rebuild(&mut self, budget: Duration) -> bool {
         let deadline = Instant::now().checked_add(budget);
         self.step_rebuild_until(usize::MAX, deadline)

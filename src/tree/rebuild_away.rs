@@ -134,7 +134,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Gives back work taken by [`RTree::take_rebuild_work`]; the next
     /// steps ([`RTree::step_rebuild`]) finish what it did not finish,
     /// apply the changes made meanwhile and swap it in. Returns `false`, and drops the work, if it is not this
-    /// tree's rebuild under way (cancelled meanwhile, or another tree's):
+    /// tree's rebuild under way (dropped meanwhile by `cancel_rebuild`,
+    /// `rebuild`, a non-empty `insert_bulk` or `clear`, or another tree's):
     /// the tree is then unchanged.
     pub fn finish_rebuild_work(&mut self, work: RebuildWork<K, W>) -> bool {
         let Some(job) = self.rebuild_job.as_mut() else {
