@@ -338,3 +338,33 @@ fn the_moved_join_checks_everything_before_reporting() {
         "(0, 1) and (1, 2) overlap, (0, 2) and (1, 3) touch"
     );
 }
+
+/// A cross join of trees of different heights: while the taller one
+/// descends alone, its children are tested against the shorter tree's
+/// bound, so a one-entry tree far from the town visits a handful of nodes
+/// instead of every internal node of the town, and finds what the oracle
+/// finds either way round.
+#[test]
+fn a_small_tree_joined_with_a_large_one_visits_only_what_it_can_reach() {
+    let scene = bevy_rtree::scene::TownScene::new(20_000, 22);
+    let (town, town_oracle, _) = build::<16>(scene.boxes(), 0);
+    assert!(town.height() >= 3);
+    for (at, d) in [(Vec3::splat(1e5), 1.0), (Vec3::new(500.0, 0.0, 500.0), 5.0)] {
+        let lone = [Aabb::new(at, at + Vec3::ONE).unwrap()];
+        let (small, small_oracle, _) = build::<16>(&lone, 1_000_000);
+        let mut ws = QueryWorkspace::default();
+        let mut pairs = Vec::new();
+        small
+            .cross_join_into(&town, d, JoinMode::Euclidean, &mut ws, &mut pairs)
+            .unwrap();
+        let want = small_oracle.cross_join(&town_oracle, d, JoinMode::Euclidean);
+        assert_eq!(pairs, want.unwrap());
+        let visited = ws.take_stats().nodes_visited;
+        assert!(visited < 40, "{visited} node pairs visited");
+        let mut swapped = Vec::new();
+        town.cross_join_into(&small, d, JoinMode::Euclidean, &mut ws, &mut swapped)
+            .unwrap();
+        assert_eq!(swapped.len(), pairs.len());
+        assert!(ws.take_stats().nodes_visited < 40);
+    }
+}

@@ -8,7 +8,8 @@ use std::ops::ControlFlow;
 
 use super::QueryWorkspace;
 use super::join::{
-    JoinItem, JoinMode, JoinTest, LaneMasks, NodePair, four_lane_masks, grow, join_lane_pairs, meet,
+    JoinItem, JoinMode, JoinTest, LaneMasks, NodePair, cross_roots, four_lane_masks, grow,
+    join_lane_pairs, meet,
 };
 use crate::geometry::{Aabb, SpatialError};
 use crate::tree::RTree;
@@ -57,10 +58,15 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             return Ok(());
         }
         ws.join_stack.clear();
-        ws.join_stack
-            .push(JoinItem::roots(self.root(), other.root()));
+        ws.join_stack.push(self.cross_join_roots(other, test));
         let _ = self.drain_cross_join(other, test, ws, &mut visit);
         Ok(())
+    }
+
+    /// The first pair of a cross join with `other`: the two roots.
+    pub(crate) fn cross_join_roots(&self, other: &RTree<K, W>, test: JoinTest) -> JoinItem {
+        let (a, b) = (self.root(), other.root());
+        cross_roots((a, self.node(a)), (b, other.node(b)), test.reach)
     }
 
     /// Runs the cross join with `other` from the node pairs on

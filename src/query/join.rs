@@ -164,7 +164,7 @@ pub(crate) struct JoinItem {
 }
 
 impl JoinItem {
-    /// The item of two roots.
+    /// The item of a tree's root with itself (a self join).
     pub(crate) fn roots(a: u32, b: u32) -> Self {
         let everywhere = Aabb {
             min: Vec3::NEG_INFINITY,
@@ -176,6 +176,22 @@ impl JoinItem {
             region: everywhere,
         }
     }
+}
+
+/// The item of the roots of two trees (a cross join): their region is
+/// already the meeting of both roots' bounds grown by `reach`, so that
+/// while the taller tree descends alone its children are tested against
+/// the shorter tree's bound, not against all of space.
+pub(crate) fn cross_roots<const W: usize>(
+    (a, na): (u32, &Node<W>),
+    (b, nb): (u32, &Node<W>),
+    reach: f32,
+) -> JoinItem {
+    let region = meet(
+        &grow(&na.lanes_union(), reach),
+        &grow(&nb.lanes_union(), reach),
+    );
+    JoinItem { a, b, region }
 }
 
 /// The intersection of two boxes (inverted when they are apart).

@@ -383,7 +383,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             return self.cross_join_into(other, distance, mode, ws, out);
         }
         self.par_join(
-            JoinItem::roots(self.root(), other.root()),
+            self.cross_join_roots(other, test),
             count,
             pws,
             out,
