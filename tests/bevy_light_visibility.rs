@@ -413,3 +413,58 @@ fn light_probes_are_seen_in_the_frame_they_get_their_box() {
         );
     }
 }
+
+/// Systems an app orders after Bevy's visibility systems stay ordered
+/// after the systems that replace them: a probe that reads the lists,
+/// `.after(check_point_light_mesh_visibility)` or
+/// `.after(check_visibility_cpu_culling)`, is ordered against the index's
+/// system as against Bevy's, so it never reads last frame's lists. Checked
+/// on the built schedule: no system that writes what a probe reads runs
+/// unordered with it, in either App.
+#[test]
+fn systems_ordered_after_bevy_s_are_ordered_after_the_index_s() {
+    use bevy_camera::visibility::{VisibleEntities, check_visibility_cpu_culling};
+    use bevy_ecs::schedule::{IntoSystemSet, Schedules, SystemSet};
+    use bevy_light::check_point_light_mesh_visibility;
+
+    fn light_probe(lists: Query<&CubemapVisibleEntities>) {
+        let _ = lists.iter().count();
+    }
+    fn camera_probe(lists: Query<&VisibleEntities>) {
+        let _ = lists.iter().count();
+    }
+    let probes = [
+        light_probe.into_system_set().intern(),
+        camera_probe.into_system_set().intern(),
+    ];
+    for ours in [false, true] {
+        let mut app = app(ours);
+        app.add_systems(
+            PostUpdate,
+            (
+                light_probe.after(check_point_light_mesh_visibility),
+                camera_probe.after(check_visibility_cpu_culling),
+            ),
+        );
+        app.update();
+        let schedule = app.world().resource::<Schedules>().get(PostUpdate).unwrap();
+        // Between runs the systems are held by the schedule's executable;
+        // each is known by its function's set.
+        let is_probe: HashMap<_, bool> = schedule
+            .systems()
+            .unwrap()
+            .map(|(key, system)| {
+                let sets = system.default_system_sets();
+                (key, probes.iter().any(|probe| sets.contains(probe)))
+            })
+            .collect();
+        let unordered: Vec<_> = schedule
+            .graph()
+            .conflicting_systems()
+            .0
+            .iter()
+            .filter(|(a, b, _)| is_probe[a] != is_probe[b])
+            .collect();
+        assert!(unordered.is_empty(), "ours {ours}: {unordered:?}");
+    }
+}

@@ -13,6 +13,7 @@ mod columns;
 mod frustum_candidates;
 #[cfg(feature = "bevy_light")]
 mod lights;
+mod orders;
 mod radix;
 mod rows;
 mod storage_order;
@@ -194,6 +195,11 @@ impl Plugin for BevyVisibilityPlugin {
                 RenderableSyncSystems
                     .after(TransformSystems::Propagate)
                     .after(VisibilitySystems::CalculateBounds)
+                    // After the sets that run before it, bevy_light's
+                    // `UpdateBounds` among them (light probes and decals
+                    // get their box there, by command), in a build
+                    // without the feature `bevy_light` too.
+                    .after(VisibilitySystems::UpdateFrusta)
                     .before(VisibilitySystems::CheckVisibility),
             )
             .add_systems(
@@ -210,6 +216,7 @@ impl Plugin for BevyVisibilityPlugin {
                         .in_set(RenderableSyncSystems),
                     cameras::check_visibility_from_index
                         .in_set(VisibilitySystems::CheckVisibility)
+                        .in_set(orders::ServesCameraVisibility)
                         // Where Bevy orders its own: after this frame's
                         // visibility ranges.
                         .after(check_visibility_ranges)
@@ -251,20 +258,34 @@ impl Plugin for BevyVisibilityPlugin {
 
 /// Takes out of `PostUpdate` Bevy's `check_visibility_cpu_culling` and,
 /// with feature `bevy_light`, bevy_light's `check_point_light_mesh_visibility`
-/// and `check_dir_light_mesh_visibility`: once, in `PreStartup`.
+/// and `check_dir_light_mesh_visibility`: once, in `PreStartup`. The app's
+/// systems ordered against them are ordered against their replacements
+/// instead (see `orders`).
 fn take_out_bevy_systems(world: &mut World) {
     // The schedule is taken out of `Schedules` while it changes (not the
     // whole `Schedules`: initializing a schedule reads it).
     let taken_out = world.try_schedule_scope(PostUpdate, |world, schedule| {
         let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
+        // The orders are read before anything is taken out.
+        let cameras = orders::ServesCameraVisibility.intern();
+        let culling = [check_visibility_cpu_culling.into_system_set().intern()];
+        let camera_orders = orders::orders_against(schedule, &culling, cameras);
         #[cfg(feature = "bevy_light")]
         {
             use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
+            let lights = orders::ServesLightVisibility.intern();
+            let shadows = [
+                check_point_light_mesh_visibility.into_system_set().intern(),
+                check_dir_light_mesh_visibility.into_system_set().intern(),
+            ];
+            let light_orders = orders::orders_against(schedule, &shadows, lights);
             let _ =
                 schedule.remove_systems_in_set(check_point_light_mesh_visibility, world, policy);
             let _ = schedule.remove_systems_in_set(check_dir_light_mesh_visibility, world, policy);
+            orders::order(schedule, lights, light_orders);
         }
         let removed = schedule.remove_systems_in_set(check_visibility_cpu_culling, world, policy);
+        orders::order(schedule, cameras, camera_orders);
         matches!(removed, Ok(n) if n > 0)
     });
     let taken_out = taken_out.unwrap_or(false);
@@ -288,6 +309,7 @@ fn add_light_visibility(app: &mut App) {
         PostUpdate,
         lights::check_light_visibility_from_index
             .in_set(SimulationLightSystems::CheckLightVisibility)
+            .in_set(orders::ServesLightVisibility)
             .after(VisibilitySystems::CalculateBounds)
             .after(TransformSystems::Propagate)
             .after(SimulationLightSystems::UpdateLightFrusta)
