@@ -308,3 +308,26 @@ fn bad_input_fails_in_its_own_place() {
         }
     }
 }
+
+/// A view over the whole scene (every node inside every plane, as an
+/// overview camera's or a light's) is split like any other: the subtrees
+/// inside are walked level by level, so they are cut into tasks too, and
+/// the answer is the single-threaded one in the same order.
+#[test]
+fn a_view_that_holds_the_whole_scene_splits_and_answers_the_same() {
+    let (_, tree, _) = common::town_tree(20_000, 9);
+    // High above the town's middle, looking straight down, far enough to
+    // hold all of it.
+    let above = Vec3::new(1000.0, 5000.0, 1000.0);
+    let down = Quat::from_rotation_x(-std::f32::consts::FRAC_PI_2);
+    let view = Frustum::perspective(above, down, 1.2, 1.0, 1.0, 1e5).unwrap();
+    let mut ws = QueryWorkspace::default();
+    let mut serial = vec![Vec::new()];
+    tree.visible_into(&[view], CullMode::Conservative, &mut ws, &mut serial);
+    assert_eq!(serial[0].len(), 20_000, "the view holds every entry");
+    let mut pws = split_everything();
+    let mut parallel = vec![Vec::new()];
+    tree.par_visible_into(&[view], CullMode::Conservative, &mut pws, &mut parallel);
+    expect_split(&pws);
+    assert_eq!(serial, parallel);
+}

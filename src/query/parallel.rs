@@ -111,6 +111,11 @@ fn run_claimed<T: Sync, K: Send>(
         }
     };
     let (first, rest) = tasks.split_first_mut().expect("at least one task");
+    if rest.is_empty() {
+        // One task: no scope to enter, no thread to wake.
+        take(first);
+        return;
+    }
     let working = AtomicUsize::new(0);
     let working = &working;
     pool().scope(|scope| {
@@ -296,7 +301,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             frontier,
             next,
             count * ITEMS_PER_TASK,
-            // A subtree inside every plane is reported at once.
+            // A subtree inside every plane is not cut further. (It is
+            // walked level by level like any other, so it could be: a view
+            // over the whole scene then goes to as many tasks as the root
+            // has children. Whether cutting it pays on 8 or 16 threads is
+            // still to be measured.)
             |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
             |item, pushed| {
                 ws.stats.nodes_visited += 1;

@@ -26,8 +26,9 @@
 //! measured no gain from it (they do more work per node, which already
 //! hides the loads), so they do not use it.
 //!
-//! This is the crate's only `unsafe`: the prefetch intrinsic is an `unsafe
-//! fn` although it can neither fault nor change memory.
+//! The prefetch intrinsic is an `unsafe fn` although it can neither fault
+//! nor change memory; the crate's other `unsafe` is the SIMD lane tests,
+//! each behind a check that the processor has the instructions.
 
 use super::RTree;
 
