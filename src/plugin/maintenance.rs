@@ -102,6 +102,9 @@ fn task_pool_available() -> bool {
 pub(crate) struct WorkAway {
     #[cfg(feature = "parallel")]
     task: Option<bevy_tasks::Task<crate::tree::RebuildWork<Entity>>>,
+    /// Whether the rebuild under way came back from the pool: only then
+    /// is what is left of it a catch-up, done a step a frame.
+    back: bool,
 }
 
 /// Repairs the layer's churned leaves within the plugin's budget, and
@@ -153,7 +156,7 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
         let work = bevy_tasks::block_on(away.task.take().unwrap());
         // Refused if the rebuild was dropped meanwhile (a bulk insert of
         // a spawn wave retiles the tree itself); a worn tree starts another.
-        tree.finish_rebuild_work(work);
+        away.back = tree.finish_rebuild_work(work);
     }
     #[cfg(not(feature = "parallel"))]
     let _ = away;
@@ -162,6 +165,7 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
             return false;
         }
         tree.start_rebuild();
+        away.back = false;
         #[cfg(feature = "parallel")]
         if let Where::TaskPool = place
             && let Some(pool) = bevy_tasks::AsyncComputeTaskPool::try_get()
@@ -175,8 +179,57 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
         }
     }
     match place {
-        // Back from the pool: complete, so the step swaps it in.
-        Where::TaskPool => tree.step_rebuild(Duration::ZERO),
+        // Back from the pool: complete, so the steps catch up and swap it in.
+        Where::TaskPool if away.back => tree.step_rebuild(Duration::ZERO),
+        // Started in slices before the app had a pool: a step without a
+        // budget would go one unit a frame. Dropped; the worn tree's next
+        // rebuild goes to the pool.
+        Where::TaskPool => {
+            tree.cancel_rebuild();
+            false
+        }
         Where::Slices(budget) => tree.step_rebuild(budget),
+    }
+}
+
+#[cfg(all(test, feature = "parallel"))]
+mod tests {
+    use bevy_ecs::entity::Entity;
+
+    use super::*;
+    use crate::geometry::Aabb;
+
+    /// A rebuild started in slices before the app had a task pool is not
+    /// left to go one unit a frame once the pool is there: it is dropped,
+    /// and the worn tree's next rebuild runs on the pool and is swapped in
+    /// within a few frames.
+    #[test]
+    fn a_rebuild_begun_in_slices_does_not_crawl_once_a_pool_appears() {
+        let mut tree = RTree::<Entity>::new();
+        let ids: Vec<_> = (0..20_000u32)
+            .map(|i| {
+                let at = glam::Vec3::new((i % 150) as f32, 0.0, (i / 150) as f32) * 3.0;
+                let entity = Entity::from_raw_u32(i + 1).unwrap();
+                tree.insert(entity, Aabb::new(at, at + glam::Vec3::ONE).unwrap())
+                    .unwrap()
+            })
+            .collect();
+        for &id in &ids[..6_000] {
+            tree.remove(id).unwrap();
+        }
+        assert!(tree.is_worn());
+        let mut away = WorkAway::default();
+        keep_fresh(&mut tree, Where::Slices(Duration::ZERO), &mut away);
+        assert!(tree.rebuild_pending(), "begun in slices");
+        bevy_tasks::AsyncComputeTaskPool::get_or_init(bevy_tasks::TaskPool::default);
+        let mut frames = 0;
+        while !keep_fresh(&mut tree, Where::TaskPool, &mut away) {
+            frames += 1;
+            assert!(frames < 500, "not swapped in");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        tree.validate().unwrap();
+        assert!(!tree.is_worn());
+        assert!(frames < 100, "{frames} frames");
     }
 }
