@@ -468,3 +468,28 @@ fn systems_ordered_after_bevy_s_are_ordered_after_the_index_s() {
         assert!(unordered.is_empty(), "ours {ours}: {unordered:?}");
     }
 }
+
+/// One system replaces bevy_light's two, which are not ordered against
+/// each other: an app's systems between them (`a` after one, `b` before
+/// the other, `a` before `b`) must not close a cycle around the
+/// replacement, and the app runs as with Bevy's systems.
+#[test]
+fn systems_between_bevy_s_two_light_systems_make_no_cycle() {
+    use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
+
+    fn a() {}
+    fn b() {}
+    for ours in [false, true] {
+        let mut app = app(ours);
+        app.add_systems(
+            PostUpdate,
+            (
+                a.after(check_dir_light_mesh_visibility),
+                b.before(check_point_light_mesh_visibility),
+            )
+                .chain(),
+        );
+        app.update();
+        app.update();
+    }
+}

@@ -310,9 +310,9 @@ fn bad_input_fails_in_its_own_place() {
 }
 
 /// A view over the whole scene (every node inside every plane, as an
-/// overview camera's or a light's) is split like any other: the subtrees
-/// inside are walked level by level, so they are cut into tasks too, and
-/// the answer is the single-threaded one in the same order.
+/// overview camera's or a light's) is split at the root's children, which
+/// are inside every plane already, and the answer is the single-threaded
+/// one in the same order.
 #[test]
 fn a_view_that_holds_the_whole_scene_splits_and_answers_the_same() {
     let (_, tree, _) = common::town_tree(20_000, 9);

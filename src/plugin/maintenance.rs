@@ -222,14 +222,16 @@ mod tests {
         keep_fresh(&mut tree, Where::Slices(Duration::ZERO), &mut away);
         assert!(tree.rebuild_pending(), "begun in slices");
         bevy_tasks::AsyncComputeTaskPool::get_or_init(bevy_tasks::TaskPool::default);
+        // The first frame with the pool drops it.
+        assert!(!keep_fresh(&mut tree, Where::TaskPool, &mut away));
+        assert!(!tree.rebuild_pending());
         let mut frames = 0;
         while !keep_fresh(&mut tree, Where::TaskPool, &mut away) {
             frames += 1;
-            assert!(frames < 500, "not swapped in");
+            assert!(frames < 10_000, "not swapped in");
             std::thread::sleep(Duration::from_millis(1));
         }
         tree.validate().unwrap();
         assert!(!tree.is_worn());
-        assert!(frames < 100, "{frames} frames");
     }
 }

@@ -150,8 +150,10 @@ impl BevyVisibilitySettings {
 }
 
 /// The plugin's system set in `PostUpdate`: the renderables' index follows
-/// their transforms and boxes; it runs after transform propagation and
-/// Bevy's bounds, before `VisibilitySystems::CheckVisibility`.
+/// their transforms and boxes; it runs after transform propagation,
+/// Bevy's bounds and `VisibilitySystems::UpdateFrusta` (so after the sets
+/// before it, bevy_light's `UpdateBounds` among them), before
+/// `VisibilitySystems::CheckVisibility`.
 ///
 /// A system of the app that writes `GlobalTransform` or `Aabb` (or spawns
 /// or enables renderables) after transform propagation but before Bevy's
@@ -266,7 +268,9 @@ fn take_out_bevy_systems(world: &mut World) {
     // whole `Schedules`: initializing a schedule reads it).
     let taken_out = world.try_schedule_scope(PostUpdate, |world, schedule| {
         let policy = ScheduleCleanupPolicy::RemoveSystemsOnly;
-        // The orders are read before anything is taken out.
+        // The orders are read before anything is taken out: taking out
+        // builds the schedule, after which its systems are named through
+        // the executable (both work; reading first keeps it one way).
         let cameras = orders::ServesCameraVisibility.intern();
         let culling = [check_visibility_cpu_culling.into_system_set().intern()];
         let camera_orders = orders::orders_against(schedule, &culling, cameras);

@@ -6,8 +6,16 @@
 //! `probe` after nothing: it may run before the index fills the lists it
 //! reads, where with Bevy's system it always ran after. So before Bevy's
 //! system goes, each order of a system against its set is copied onto the
-//! set of the system that takes its place. (An order of a whole set of the
-//! app cannot be: the schedule hands out its other sets only by reference.)
+//! set of the system that takes its place.
+//!
+//! Not carried over (each logged at debug level): an order of a whole set
+//! of the app (the schedule hands out its sets only by reference), of a
+//! function added more than once (which cannot be ordered against by
+//! name), and, for the one system that replaces bevy_light's two, the
+//! orders of systems that run *before* them: with orders on both sides of
+//! two unordered systems, one replacement could close a cycle (`a` after
+//! one and `b` before the other, `a` before `b`). Systems that read the
+//! lights' lists come after them, and those orders are carried.
 
 use bevy_ecs::schedule::graph::Direction;
 use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, NodeId, Schedule, SystemSet};
@@ -25,9 +33,8 @@ pub(super) struct ServesLightVisibility;
 /// The systems `schedule` orders before and after the sets `replaced`
 /// (Bevy's systems, still in it), each named by its function's set:
 /// `(before, after)`. Left out: the systems of `ours` (the replacement
-/// itself), a function added more than once (which cannot be ordered
-/// against by name), and a system found on both sides (before one of
-/// Bevy's systems and after another: one replacement cannot sit between).
+/// itself), what the module's docs list, and a system found on both sides.
+/// Read before any of them is taken out (see `take_out_bevy_systems`).
 pub(super) fn orders_against(
     schedule: &Schedule,
     replaced: &[InternedSystemSet],
@@ -35,28 +42,41 @@ pub(super) fn orders_against(
 ) -> (Vec<InternedSystemSet>, Vec<InternedSystemSet>) {
     let graph = schedule.graph();
     let ours = graph.system_sets.get_key(ours).map(NodeId::Set);
+    let hierarchy = graph.hierarchy().graph();
+    // A system is held by the graph until the schedule is first built, and
+    // by its executable afterwards.
+    let system = |key| {
+        graph
+            .systems
+            .get(key)
+            .map(|held| held.system())
+            .or_else(|| {
+                let mut built = schedule.systems().ok()?;
+                built
+                    .find(|(built, _)| *built == key)
+                    .map(|(_, system)| system)
+            })
+    };
     let label = |node: NodeId| -> Option<InternedSystemSet> {
-        if ours.is_some_and(|ours| graph.hierarchy().graph().contains_edge(ours, node)) {
+        if ours.is_some_and(|ours| hierarchy.contains_edge(ours, node)) {
             return None;
         }
         let NodeId::System(key) = node else {
             log::debug!(
-                "an order of a system set against a system the index replaces is not carried over"
+                "an order of a set against a system the index replaces is not carried over"
             );
             return None;
         };
-        let function = *graph
-            .systems
-            .get(key)?
-            .system()
-            .default_system_sets()
-            .first()?;
-        let instances = graph
-            .systems
-            .iter()
-            .filter(|(_, other, _)| other.default_system_sets().contains(&function))
+        let function = *system(key)?.default_system_sets().first()?;
+        let function_key = graph.system_sets.get_key(function)?;
+        let instances = hierarchy
+            .neighbors_directed(NodeId::Set(function_key), Direction::Outgoing)
             .count();
-        (instances == 1).then_some(function)
+        if instances != 1 {
+            log::debug!("an order of {function:?}, added {instances} times, is not carried over");
+            return None;
+        }
+        Some(function)
     };
     let dependency = graph.dependency().graph();
     let (mut before, mut after) = (Vec::new(), Vec::new());
@@ -81,8 +101,15 @@ pub(super) fn orders_against(
         .filter(|set| after.contains(set))
         .copied()
         .collect();
+    if !both.is_empty() {
+        log::debug!("orders on both sides of the systems the index replaces are not carried over");
+    }
     before.retain(|set| !both.contains(set));
     after.retain(|set| !both.contains(set));
+    if replaced.len() > 1 && !before.is_empty() {
+        log::debug!("orders before the systems the index replaces with one are not carried over");
+        before.clear();
+    }
     (before, after)
 }
 
