@@ -259,37 +259,34 @@ pub(super) fn add_observers(app: &mut bevy_app::App, handles_kept: bool) {
         app.add_observer(visible_now::<InheritedVisibility>)
             .add_observer(visible_now::<ViewVisibility>);
     }
-    app.add_observer(box_lost::<Remove<BevyAabb>>)
-        .add_observer(box_lost::<Remove<GlobalTransform>>)
+    app.add_observer(leave::<Remove<BevyAabb>, true>)
+        .add_observer(leave::<Remove<GlobalTransform>, true>)
         .add_observer(invisible::<InheritedVisibility>)
         .add_observer(invisible::<ViewVisibility>)
-        .add_observer(leave::<Add<NoCpuCulling>>)
-        .add_observer(leave::<Add<NoFrustumCulling>>)
+        .add_observer(leave::<Add<NoCpuCulling>, false>)
+        .add_observer(leave::<Add<NoFrustumCulling>, false>)
         .add_observer(come_back::<Remove<NoCpuCulling>>)
         .add_observer(come_back::<Remove<NoFrustumCulling>>)
-        .add_observer(leave::<Add<Disabled>>)
+        .add_observer(leave::<Add<Disabled>, false>)
         .add_observer(come_back::<Remove<Disabled>>);
 }
 
-/// The entity's box is gone (its `Aabb` or its transform, a despawn too).
-fn box_lost<P: EventPattern>(
+/// Observer: the entity leaves the renderables' index. `BOX_LOST` when its
+/// box is gone (its `Aabb` or its transform, a despawn too), which also
+/// forgets a warning about that box.
+fn leave<P: EventPattern, const BOX_LOST: bool>(
     event: On<P>,
     mut index: ResMut<SpatialIndex<Renderable>>,
     sink: Res<DiagnosticsSink>,
 ) where
     P::Event: EntityEvent,
 {
-    index::remove_box(event.event_target(), &mut index, &sink);
-}
-
-fn leave<P: EventPattern>(
-    event: On<P>,
-    mut index: ResMut<SpatialIndex<Renderable>>,
-    sink: Res<DiagnosticsSink>,
-) where
-    P::Event: EntityEvent,
-{
-    index::remove_from_layer(event.event_target(), &mut index, &sink);
+    let entity = event.event_target();
+    if BOX_LOST {
+        index::remove_box(entity, &mut index, &sink);
+    } else {
+        index::remove_from_layer(entity, &mut index, &sink);
+    }
 }
 
 /// The renderables' [`ComeBack`](crate::plugin::disabling::ComeBack): an
