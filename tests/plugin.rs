@@ -639,10 +639,22 @@ impl log::Log for CapturedLog {
 
 static CAPTURED: CapturedLog = CapturedLog(std::sync::Mutex::new(Vec::new()));
 
-#[test]
-fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
+/// Starts capturing warnings (once per test binary; later calls do nothing).
+fn capture_warnings() {
     let _ = log::set_logger(&CAPTURED);
     log::set_max_level(log::LevelFilter::Warn);
+}
+
+/// The captured warnings that name `entity`.
+fn warnings_about(entity: Entity) -> usize {
+    let name = format!("{entity} ");
+    let lines = CAPTURED.0.lock().unwrap();
+    lines.iter().filter(|line| line.starts_with(&name)).count()
+}
+
+#[test]
+fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
+    capture_warnings();
     let mut app = app();
     // Other tests in this binary log too: give this entity an id none of
     // them reaches.
@@ -665,15 +677,7 @@ fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
             "counted every time"
         );
     }
-    let name = bad.to_string();
-    let warnings = CAPTURED
-        .0
-        .lock()
-        .unwrap()
-        .iter()
-        .filter(|line| line.starts_with(&format!("{name} ")))
-        .count();
-    assert_eq!(warnings, 1, "logged once");
+    assert_eq!(warnings_about(bad), 1, "logged once");
     assert_eq!(diagnostics(&app).invalid_total, 3);
 }
 
@@ -683,25 +687,15 @@ fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
 #[test]
 fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
     use bevy_ecs::entity_disabling::Disabled;
-    let _ = log::set_logger(&CAPTURED);
-    log::set_max_level(log::LevelFilter::Warn);
+    capture_warnings();
     let mut app = app();
     // An id no other test of this binary reaches.
     for i in 0..6_000 {
         app.world_mut().spawn(unit_at(i as f32));
     }
     let bad = app.world_mut().spawn(SpatialBounds(Aabb::INVERTED)).id();
-    let warnings = || {
-        CAPTURED
-            .0
-            .lock()
-            .unwrap()
-            .iter()
-            .filter(|line| line.starts_with(&format!("{bad} ")))
-            .count()
-    };
     app.update();
-    assert_eq!(warnings(), 1);
+    assert_eq!(warnings_about(bad), 1);
     for _ in 0..2 {
         app.world_mut().entity_mut(bad).insert(Disabled);
         app.update();
@@ -715,7 +709,7 @@ fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
         let index = app.world().resource::<SpatialIndex>();
         assert!(index.unindexed().any(|e| e == bad), "left out for its box");
     }
-    assert_eq!(warnings(), 1, "warned once");
+    assert_eq!(warnings_about(bad), 1, "warned once");
     // A new box, invalid again: a new warning.
     app.world_mut().entity_mut(bad).remove::<SpatialBounds>();
     app.update();
@@ -723,7 +717,7 @@ fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
         .entity_mut(bad)
         .insert(SpatialBounds(Aabb::INVERTED));
     app.update();
-    assert_eq!(warnings(), 2);
+    assert_eq!(warnings_about(bad), 2);
 }
 
 #[test]
