@@ -5,7 +5,7 @@
 use bevy_app::prelude::*;
 use bevy_ecs::prelude::*;
 use bevy_rtree::plugin::*;
-use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, Ray, RayMode};
+use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, Ray, RayMode, SpatialError};
 use glam::{Quat, Vec3};
 
 #[derive(Component)]
@@ -722,28 +722,40 @@ fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
 
 #[test]
 fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
-    let mut app = app();
-    app.add_spatial_join::<Enemy, Barrel>(f32::NAN, JoinMode::Euclidean);
-    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
-    let barrel = app.world_mut().spawn((unit_at(1.5), Barrel)).id();
-    app.update();
-    assert!(
-        app.world()
-            .resource::<SpatialJoin<Enemy, Barrel>>()
-            .pairs()
-            .is_empty()
-    );
-    // Nothing changed: not recomputed (and not reported) again.
-    app.update();
-    assert_eq!(diagnostics(&app).joins.runs, 0);
-    app.world_mut()
-        .resource_mut::<SpatialJoin<Enemy, Barrel>>()
-        .distance = 1.0;
-    app.update();
-    assert_eq!(
-        app.world().resource::<SpatialJoin<Enemy, Barrel>>().pairs(),
-        [(enemy, barrel)]
-    );
+    capture_warnings();
+    for distance in [f32::NAN, -7.25] {
+        let mut app = app();
+        app.add_spatial_join::<Enemy, Barrel>(distance, JoinMode::Euclidean);
+        let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+        let barrel = app.world_mut().spawn((unit_at(1.5), Barrel)).id();
+        app.update();
+        let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
+        assert!(join.pairs().is_empty());
+        assert_eq!(join.error(), Some(SpatialError::InvalidDistance));
+        // Nothing changed, or only the layers: not run (and not reported)
+        // again.
+        app.update();
+        assert_eq!(diagnostics(&app).joins.runs, 0);
+        for x in [0.5, 1.0] {
+            app.world_mut().get_mut::<SpatialBounds>(enemy).unwrap().0 = unit_at(x).0;
+            app.update();
+            assert_eq!(diagnostics(&app).joins.runs, 0);
+        }
+        app.world_mut()
+            .resource_mut::<SpatialJoin<Enemy, Barrel>>()
+            .distance = 1.0;
+        app.update();
+        let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
+        assert_eq!(join.pairs(), [(enemy, barrel)]);
+        assert_eq!(join.error(), None);
+    }
+    // Only this test uses the distance -7.25: warned about once.
+    let lines = CAPTURED.0.lock().unwrap();
+    let warned = lines
+        .iter()
+        .filter(|l| l.contains("distance -7.25"))
+        .count();
+    assert_eq!(warned, 1);
 }
 
 /// Every query of `SpatialQuery` with a filter answers as the oracle does
@@ -862,12 +874,12 @@ fn filtered_queries_answer_as_if_the_excluded_entities_were_not_there() {
 #[test]
 fn casters_ignore_themselves_and_obey_their_filter() {
     let mut app = app();
-    // Five walls 10 m tall along +X; each shooter stands at its own height,
+    // Five walls 20 m tall along +X; each shooter stands at its own height,
     // in its own unit box, looking down +X.
     let walls: Vec<Entity> = (1..6)
         .map(|i| {
             let x = i as f32 * 3.0;
-            let wall = Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 10.0, 1.0)).unwrap();
+            let wall = Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 20.0, 1.0)).unwrap();
             app.world_mut().spawn(SpatialBounds(wall)).id()
         })
         .collect();
@@ -904,8 +916,13 @@ fn casters_ignore_themselves_and_obey_their_filter() {
         app.world_mut().get_mut::<RayCaster>(e).unwrap().filter = filter.clone();
     }
     let blind = shooter(&mut app, RayMode::Any, |c| c);
-    app.world_mut().get_mut::<RayCaster>(blind).unwrap().filter =
-        SpatialQueryFilter::excluding(walls.clone());
+    // All hits with a limit of none report only whether there was one.
+    let counter = shooter(&mut app, RayMode::All { limit: Some(0) }, |c| c);
+    let blind_counter = shooter(&mut app, RayMode::All { limit: Some(0) }, |c| c);
+    for e in [blind, blind_counter] {
+        app.world_mut().get_mut::<RayCaster>(e).unwrap().filter =
+            SpatialQueryFilter::excluding(walls.clone());
+    }
     app.update();
     let hits = |app: &App, e: Entity| app.world().get::<RayCasterHits>(e).unwrap().clone();
     let keys = |app: &App, e: Entity| -> Vec<Entity> {
@@ -922,6 +939,8 @@ fn casters_ignore_themselves_and_obey_their_filter() {
     assert_eq!(keys(&app, filtered[1]), walls[2..4]);
     assert!(hits(&app, filtered[2]).any());
     assert!(!hits(&app, blind).any(), "only walls and itself on its ray");
+    assert!(hits(&app, counter).any() && keys(&app, counter).is_empty());
+    assert!(!hits(&app, blind_counter).any(), "only walls and itself");
 }
 
 /// `SpatialHandle` is a component like any other: an app can remove it

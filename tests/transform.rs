@@ -255,6 +255,81 @@ fn a_caster_on_a_transform_keeps_valid_extreme_directions() {
     assert_eq!(hits.error(), Some(SpatialError::InvalidRay));
 }
 
+/// A mirroring transform mirrors a caster's ray as it mirrors the entity,
+/// origin and direction alike, whichever axis it mirrors; a collapsed axis
+/// (scale 0) has no rotation, and the ray is reported invalid.
+#[test]
+fn a_mirrored_caster_looks_the_mirrored_way() {
+    use bevy_rtree::{Ray, RayMode, SpatialError};
+    let mut app = app();
+    let wall = |x: f32| Aabb::new(Vec3::new(x, -1.0, -1.0), Vec3::new(x + 1.0, 1.0, 1.0)).unwrap();
+    let east = app.world_mut().spawn(SpatialBounds(wall(10.0))).id();
+    let west = app.world_mut().spawn(SpatialBounds(wall(-11.0))).id();
+    // From 2 m out along local +X, looking down local +X.
+    let ray = Ray::new(Vec3::new(2.0, 0.0, 0.0), Vec3::X, 100.0).unwrap();
+    // (scale, the wall hit, the world origin, the entry t in metres)
+    let cases = [
+        (Vec3::ONE, east, Vec3::new(2.0, 0.0, 0.0), 8.0),
+        (
+            Vec3::new(-1.0, 1.0, 1.0),
+            west,
+            Vec3::new(-2.0, 0.0, 0.0),
+            8.0,
+        ),
+        (
+            Vec3::new(1.0, -1.0, 1.0),
+            east,
+            Vec3::new(2.0, 0.0, 0.0),
+            8.0,
+        ),
+        (
+            Vec3::new(1.0, 1.0, -1.0),
+            east,
+            Vec3::new(2.0, 0.0, 0.0),
+            8.0,
+        ),
+        (Vec3::splat(-1.0), west, Vec3::new(-2.0, 0.0, 0.0), 8.0),
+        (
+            Vec3::new(-2.0, 3.0, 1.0),
+            west,
+            Vec3::new(-4.0, 0.0, 0.0),
+            6.0,
+        ),
+    ];
+    let casters: Vec<Entity> = cases
+        .iter()
+        .map(|&(scale, ..)| {
+            app.world_mut()
+                .spawn((
+                    RayCaster::new(ray, RayMode::First),
+                    Transform::from_scale(scale),
+                ))
+                .id()
+        })
+        .collect();
+    let flat = app
+        .world_mut()
+        .spawn((
+            RayCaster::new(ray, RayMode::First),
+            Transform::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+        ))
+        .id();
+    app.update();
+    for (&caster, &(scale, wall, origin, t)) in casters.iter().zip(&cases) {
+        let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+        let cast = hits.ray().unwrap();
+        assert!(
+            (cast.origin - origin).length() < 1e-5,
+            "scale {scale}: {cast:?}"
+        );
+        let hit = hits.first().expect("a wall is hit");
+        assert_eq!(hit.key, wall, "scale {scale}");
+        assert!((hit.t - t).abs() < 1e-4, "scale {scale}: t = {}", hit.t);
+    }
+    let hits = app.world().get::<RayCasterHits>(flat).unwrap();
+    assert_eq!(hits.error(), Some(SpatialError::InvalidRay));
+}
+
 /// The entities whose `SpatialBounds` this frame's world boxes marked
 /// changed, recorded right after they are written.
 #[derive(Resource, Default)]

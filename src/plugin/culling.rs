@@ -105,7 +105,9 @@ impl<L: Component> CullingCamera<L> {
 /// [`SpatialIndexSystems::Queries`](super::SpatialIndexSystems::Queries); the
 /// list's allocation is reused from frame to frame. When the entity loses
 /// its `CullingCamera<L>`, the list goes too, so that it never names
-/// entities that no longer exist.
+/// entities that no longer exist. A disabled camera does not cull: its list
+/// is the one from before it was disabled until it is enabled again, as
+/// Bevy leaves a disabled camera's `VisibleEntities`.
 ///
 /// ```
 /// use bevy_app::prelude::*;

@@ -9,6 +9,7 @@ use bevy_ecs::prelude::*;
 
 use super::diagnostics::DiagnosticsSink;
 use super::index::SpatialIndex;
+use crate::SpatialError;
 use crate::query::JoinMode;
 
 /// The pairs of a join registered with
@@ -55,6 +56,8 @@ pub struct SpatialJoin<A: Component, B: Component> {
     /// What the pairs were computed from: both layers' generations, the
     /// distance and the mode.
     computed_from: Option<(u64, u64, u32, JoinMode)>,
+    /// The error of the distance last refused, with its bits.
+    refused: Option<(u32, SpatialError)>,
     workspace: FrameWorkspace,
     _layers: PhantomData<fn() -> (A, B)>,
 }
@@ -67,6 +70,7 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
             pairs: Vec::new(),
             previous: Vec::new(),
             computed_from: None,
+            refused: None,
             workspace: FrameWorkspace::default(),
             _layers: PhantomData,
         }
@@ -75,6 +79,34 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
     /// This frame's pairs, sorted.
     pub fn pairs(&self) -> &[(Entity, Entity)] {
         &self.pairs
+    }
+
+    /// Why the join has no pairs, if its `distance` is refused
+    /// (`SpatialError::InvalidDistance`: negative, NaN or infinite). The
+    /// join then reports no pair until the distance is fixed, and is not
+    /// run again while only the layers change.
+    ///
+    /// ```
+    /// use bevy_app::prelude::*;
+    /// use bevy_rtree::prelude::*;
+    ///
+    /// # #[derive(bevy_ecs::component::Component)]
+    /// # struct Enemy;
+    /// # #[derive(bevy_ecs::component::Component)]
+    /// # struct Barrel;
+    /// let mut app = App::new();
+    /// app.add_plugins(SpatialIndexPlugin::default())
+    ///     .add_spatial_join::<Enemy, Barrel>(-5.0, JoinMode::Euclidean);
+    /// app.world_mut().spawn((SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?), Enemy));
+    /// app.world_mut().spawn((SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?), Barrel));
+    /// app.update();
+    /// let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
+    /// assert_eq!(join.error(), Some(SpatialError::InvalidDistance));
+    /// assert!(join.pairs().is_empty());
+    /// # Ok::<(), SpatialError>(())
+    /// ```
+    pub fn error(&self) -> Option<SpatialError> {
+        self.refused.map(|(_, error)| error)
     }
 }
 
@@ -205,13 +237,10 @@ pub(crate) fn run_join<A: Component, B: Component>(
     let join = &mut *join;
     // The distance by its bits, so that a NaN distance compares equal to
     // itself and is reported once, not every frame.
-    let key = (
-        a.generation(),
-        b.generation(),
-        join.distance.to_bits(),
-        join.mode,
-    );
-    if join.computed_from == Some(key) {
+    let bits = join.distance.to_bits();
+    let key = (a.generation(), b.generation(), bits, join.mode);
+    let still_refused = join.refused.is_some_and(|(refused, _)| refused == bits);
+    if join.computed_from == Some(key) || still_refused {
         return;
     }
     join.computed_from = Some(key);
@@ -237,9 +266,11 @@ pub(crate) fn run_join<A: Component, B: Component>(
             &mut join.pairs,
         )
     };
+    join.refused = None;
     if let Err(error) = result {
         // Only the distance can be wrong: no pairs until it is fixed.
         log::warn!("spatial join skipped: {error} (distance {})", join.distance);
+        join.refused = Some((bits, error));
         join.pairs.clear();
     }
     join.pairs.sort_unstable();

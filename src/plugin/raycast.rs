@@ -21,10 +21,13 @@ use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
 /// With feature `bevy`, the ray is in the entity's own space when the
 /// entity has a `GlobalTransform`, and follows it: each frame, after
 /// transform propagation, the origin is carried by the whole transform and
-/// the direction turned by its rotation (its scale stretches nothing), and
-/// the direction is normalised, so hits' `t` are distances in metres along
-/// the world ray (`max_t` is read in units of the given direction's
-/// length). Without a `GlobalTransform` the ray is in world space as given.
+/// the direction turned by its rotation (its scale stretches nothing, but a
+/// mirroring scale mirrors it, as it does the origin), and the direction is
+/// normalised, so hits' `t` are distances in metres along the world ray
+/// (`max_t` is read in units of the given direction's length). A transform
+/// that collapses an axis (a scale of 0) has no rotation: the answer is
+/// then `SpatialError::InvalidRay` until the scale is back. Without a
+/// `GlobalTransform` the ray is in world space as given.
 /// [`RayCasterHits::ray`] is the ray that was cast.
 ///
 /// The caster ignores its own entity (its ray usually starts inside its own
@@ -144,7 +147,9 @@ impl<L: Component> RayCaster<L> {
 /// One answer per layer: an entity with casters of two layers has a
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
 /// `RayCaster<L>`, the answer goes too, so that it never names entities
-/// that no longer exist.
+/// that no longer exist. A disabled caster is not cast: its answer is the
+/// one from before it was disabled until it is enabled again, as Bevy
+/// leaves a disabled camera's `VisibleEntities`.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -289,9 +294,13 @@ pub(crate) fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
     };
     let dir = ray.dir.as_dvec3();
     let length = dir.length();
+    // A mirroring transform keeps its reflection in the scale's signs (on
+    // x, as glam splits it): the direction takes those signs before it is
+    // turned, so that it is mirrored as the origin is, yet not stretched.
+    let (scale, rotation, _) = transform.to_scale_rotation_translation();
     Ray {
         origin: transform.transform_point(ray.origin),
-        dir: transform.rotation() * (dir / length).as_vec3(),
+        dir: rotation * (scale.signum() * (dir / length).as_vec3()),
         max_t: (f64::from(ray.max_t) * length) as f32,
     }
 }
@@ -356,10 +365,14 @@ pub(crate) fn cast_rays<L: Component>(
                 }
             };
             let any = scratch.results.any(i).unwrap_or(false);
+            // A mode that reports no hit (any-hit, or all hits with a limit
+            // of none) cannot show which entity `any` came from.
+            let hides_hits = matches!(mode, RayMode::Any | RayMode::All { limit: Some(0) });
             let turned_down = !caster.allows_all()
-                && match mode {
-                    RayMode::Any => any,
-                    _ => hits.iter().any(|h| !caster.allows(entity, h.key)),
+                && if hides_hits {
+                    any
+                } else {
+                    hits.iter().any(|h| !caster.allows(entity, h.key))
                 };
             if !turned_down {
                 answer.hits.extend_from_slice(hits);
@@ -378,7 +391,9 @@ pub(crate) fn cast_rays<L: Component>(
                 }
                 RayMode::All { limit } => {
                     let _ = tree.cast_ray_all_where(ray, limit, ws, &mut answer.hits, allow);
-                    answer.any = !answer.hits.is_empty();
+                    answer.any = !answer.hits.is_empty()
+                        || (limit == Some(0)
+                            && tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false));
                 }
                 RayMode::Any => {
                     answer.any = tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false);
