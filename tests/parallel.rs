@@ -258,8 +258,10 @@ fn rays_answered_at_their_shared_origin_are_not_split() {
     ] {
         for mode in RAY_MODES {
             let mut serial = RayResults::default();
+            ws.take_stats();
             tree.cast_rays(rays, mode, &mut ws, &mut serial);
             let mut parallel = RayResults::default();
+            pws.take_stats();
             tree.par_cast_rays(rays, mode, &mut pws, &mut parallel);
             assert_same_rays(&serial, &parallel);
             // Every hit is counted for all-hits, so nothing is answered early.
@@ -267,6 +269,8 @@ fn rays_answered_at_their_shared_origin_are_not_split() {
                 expect_split(&pws);
             } else {
                 assert_eq!(pws.last_split(), 1, "{mode:?}");
+                // Deciding not to split is no work of the batch's.
+                assert_eq!(pws.take_stats(), ws.take_stats(), "{mode:?}");
             }
         }
     }

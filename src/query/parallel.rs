@@ -220,7 +220,11 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         let mut count = task_count(rays.len(), pws.min_rays_per_task);
         if count > 1 {
             let ws = &mut pws.tasks(1)[0].ws;
+            // The estimate is not part of the answer: its point queries stay
+            // out of the stats, which then count what one thread counts.
+            let before = ws.stats;
             let walking = rays.len() - self.rays_answered_at_shared_origins(rays, mode, ws);
+            ws.stats = before;
             count = task_count(walking, pws.min_rays_per_task);
         }
         if count == 1 {
