@@ -617,6 +617,14 @@ fn a_bulk_insert_during_a_rebuild_drops_the_rebuild() {
     // Nothing to insert: nothing retiled, the rebuild goes on.
     assert_eq!(tree.insert_bulk(std::iter::empty()).unwrap(), Vec::new());
     assert!(tree.rebuild_pending());
+    // So too in a tree that never held an entry.
+    let mut new_tree = RTree::<u32>::new();
+    new_tree.start_rebuild();
+    assert_eq!(
+        new_tree.insert_bulk(std::iter::empty()).unwrap(),
+        Vec::new()
+    );
+    assert!(new_tree.rebuild_pending());
     let mut rng = SceneRng::new(35);
     let added: Vec<(u32, Aabb)> = (0..3_000u32)
         .map(|i| (10_000 + i, cube(rng.point_in_world(), 1.0)))

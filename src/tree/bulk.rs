@@ -46,11 +46,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if let Some(bad) = entries.iter().find(|(_, aabb)| !aabb.is_valid()) {
             bad.1.validate()?;
         }
-        if self.proxies.is_empty() {
-            return Ok(self.load_fresh(entries));
-        }
         if entries.is_empty() {
             return Ok(Vec::new());
+        }
+        if self.proxies.is_empty() {
+            return Ok(self.load_fresh(entries));
         }
         // This retiles every entry, as `rebuild` does: a rebuild under way
         // would swap in the tiling from before and then insert every new

@@ -265,7 +265,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         let threshold = self.settings.repack_threshold(W);
         let churn = &mut self.churn[node as usize];
-        *churn += 1;
+        // Saturates: a caller that never repairs may count past any limit.
+        *churn = churn.saturating_add(1);
         if *churn >= threshold {
             self.dirty.push(node);
         }

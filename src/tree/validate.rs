@@ -40,12 +40,20 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// that holds it; every stored exact and enlarged box is valid; each
     /// node's copy of the bound its parent holds for it matches that lane
     /// (all space for the root); free nodes plus live nodes make up the
-    /// pool.
+    /// pool, and free slots plus live and retired ones the slots, each listed
+    /// once.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         let root = self.root;
         ensure!(
             (root as usize) < self.nodes.len(),
             "root {root} out of the pool"
+        );
+        ensure!(
+            self.held_bounds.len() == self.nodes.len() && self.churn.len() == self.nodes.len(),
+            "{} held bounds and {} churn counts for {} nodes",
+            self.held_bounds.len(),
+            self.churn.len(),
+            self.nodes.len()
         );
         ensure!(self.nodes[root as usize].parent == NIL, "root has a parent");
         ensure!(
@@ -180,11 +188,23 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             live_proxies + self.free_proxies.len() + exhausted == self.proxies.len(),
             "proxy free list, live and exhausted proxies do not add up"
         );
+        ensure!(
+            self.keys.len() == self.proxies.len(),
+            "{} keys for {} proxy slots",
+            self.keys.len(),
+            self.proxies.len()
+        );
+        // Counts alone would pass a slot listed twice beside one missing.
+        let mut listed = vec![false; self.proxies.len()];
         for &free in &self.free_proxies {
             let stamp = self.stamps.get(free as usize);
             ensure!(
                 stamp.is_some_and(|s| !s.is_live() && !s.is_exhausted()),
                 "free proxy slot {free} is live, exhausted or missing"
+            );
+            ensure!(
+                !std::mem::replace(&mut listed[free as usize], true),
+                "free proxy slot {free} is listed twice"
             );
         }
         for &free in &self.free_nodes {
