@@ -151,8 +151,11 @@ pub(super) mod tests {
 
     /// Holds the lane test `lanes` to the scalar S4 predicate bit for bit,
     /// on grid values that make slabs touch (signed zeros included) and on
-    /// arbitrary floats from `seed`. `lanes` may decline a ray (`None`: a
-    /// ray its path does not take); returns how many rays it took.
+    /// arbitrary floats from `seed`; one round in five of each is a hard
+    /// case: a direction so short that slab distances overflow, boxes and
+    /// origin far from the world's origin, or a limit equal to a lane's
+    /// entry `t`. `lanes` may decline a ray (`None`: a ray its path does
+    /// not take); returns how many rays it took.
     pub(in crate::query) fn lanes_agree_with_the_scalar_predicate<const W: usize>(
         seed: u64,
         lanes: impl Fn(&RayTest, f32, &Node<W>) -> Option<(u32, [f32; W])>,
@@ -161,17 +164,39 @@ pub(super) mod tests {
         let mut taken = 0;
         for round in 0..20_000 {
             let grid = round % 2 == 0;
-            let node = samples.node::<W>(grid, 1 + round % W);
-            let dir = samples.point(grid);
-            let Ok(ray) = Ray::new(samples.point(grid), dir, samples.value(grid).abs() * 3.0)
-            else {
+            let mut node = samples.node::<W>(grid, 1 + round % W);
+            let mut origin = samples.point(grid);
+            let mut dir = samples.point(grid);
+            let mut max_t = samples.value(grid).abs() * 3.0;
+            match round % 5 {
+                1 => {
+                    dir *= 1e-37;
+                    max_t = f32::INFINITY;
+                }
+                3 => {
+                    // One ulp is 1 m out here.
+                    let far = 1.0e7;
+                    origin += glam::Vec3::splat(far);
+                    for row in node.min.iter_mut().chain(node.max.iter_mut()) {
+                        row.iter_mut().for_each(|v| *v += far);
+                    }
+                }
+                _ => {}
+            }
+            let Ok(ray) = Ray::new(origin, dir, max_t) else {
                 continue;
             };
             let test = RayTest::new(&ray);
-            let limit = if round % 3 == 0 {
-                f32::INFINITY
-            } else {
-                ray.max_t
+            let tie = (round % 5 == 2)
+                .then(|| {
+                    let b = node.lane_box(0);
+                    ray_box_entry(&test, f32::INFINITY, b.min.to_array(), b.max.to_array())
+                })
+                .flatten();
+            let limit = match tie {
+                Some(t) => t,
+                None if round % 3 == 0 => f32::INFINITY,
+                None => ray.max_t,
             };
             let Some((mask, lane_t)) = lanes(&test, limit, &node) else {
                 continue;
