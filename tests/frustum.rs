@@ -211,6 +211,73 @@ fn an_offset_tiny_beside_its_normal_keeps_what_the_plane_keeps() {
     }
 }
 
+/// A box of 1e15 m reaching 1/64 m into a small cube of a frustum: the
+/// exact test's projections of its corners round by more than the overlap,
+/// which must keep the box, not cull it. A point known to be in both, in
+/// exact arithmetic, is the ground truth.
+#[test]
+fn a_huge_box_reaching_a_little_into_the_view_is_kept_in_exact_mode() {
+    let far = -1e15f32;
+    let huge = common::aabb([far, far, far], [0.03125, -far, -far]);
+    let plane = |normal: Vec3, offset: f32| HalfSpace { normal, offset };
+    // Inside iff 1/64 < x < 1, -1 < y < 1, -1 < z < 1.
+    let cube = Frustum::new(
+        Vec3::ZERO,
+        [
+            plane(Vec3::X, -0.015625),
+            plane(Vec3::NEG_X, 1.0),
+            plane(Vec3::Y, 1.0),
+            plane(Vec3::NEG_Y, 1.0),
+            plane(Vec3::Z, 1.0),
+            plane(Vec3::NEG_Z, 1.0),
+        ],
+    )
+    .unwrap();
+    // (0.02, 0, 0) is in the box and strictly inside every plane.
+    let witness = [0.02f64, 0.0, 0.0];
+    assert!(witness[0] > 0.015625 && witness[0] < 1.0 && witness[0] <= 0.03125);
+    let (tree, oracle) = with_distractors(&[huge]);
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let visible = tree.visible(&cube, mode);
+        assert!(visible.contains(&0), "{mode:?}");
+        assert_eq!(visible, oracle.visible(&cube, mode));
+    }
+}
+
+/// World planes re-based on an eye whose offset `f64` cannot hold exactly
+/// (1 + 2^-60 rounds to 1, an `f32` value): the stored offset must still
+/// not fall below it, or a point the world plane keeps is culled. The
+/// world plane is x + y > 0; the point (0, 2^-61, 0) is inside by 2^-61.
+#[test]
+fn a_plane_re_based_on_an_eye_keeps_what_the_world_plane_keeps() {
+    let tiny = 2f32.powi(-60);
+    let eye = Vec3::new(1.0, tiny, 0.0);
+    let inactive = (Vec3::ZERO, f32::INFINITY);
+    let planes = [
+        (Vec3::new(1.0, 1.0, 0.0), 0.0),
+        inactive,
+        inactive,
+        inactive,
+        inactive,
+        inactive,
+    ];
+    let view = Frustum::from_world_planes(eye, planes).unwrap();
+    let point = common::aabb([0.0, tiny / 2.0, 0.0], [0.0, tiny / 2.0, 0.0]);
+    // Ground truth in f64, without the crate: 0 + 2^-61 + 0 > 0 exactly.
+    assert!(0.0 + (tiny / 2.0) as f64 > 0.0);
+    assert!(view.intersects_conservative(&point));
+    // The stored offset, over the largest normal component, is not below
+    // the exact 1 + 2^-60 (which f32 cannot hold: so above it).
+    let plane = view.planes()[0];
+    assert!(plane.offset as f64 / plane.normal.x as f64 > 1.0);
+    let (tree, oracle) = with_distractors(&[point]);
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let visible = tree.visible(&view, mode);
+        assert!(visible.contains(&0), "{mode:?}");
+        assert_eq!(visible, oracle.visible(&view, mode));
+    }
+}
+
 #[test]
 fn the_conservative_false_positive_and_its_removal_in_exact_mode() {
     // Looking down -z, 90 degree fov, square: inside iff |x|, |y| < -z and

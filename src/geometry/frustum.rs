@@ -94,6 +94,38 @@ impl HalfSpace {
     }
 }
 
+/// The sum of `terms` rounded to an `f64` no smaller than the exact sum
+/// (the sum itself where every addition is exact), so that an offset
+/// re-based on an eye never moves its plane inward: the rounding left over
+/// from each addition is kept (Knuth's two-sum), and unless what is left
+/// over in the end is surely below zero, the result goes one step up.
+fn sum_at_least(terms: [f64; 4]) -> f64 {
+    let two_sum = |a: f64, b: f64| {
+        let sum = a + b;
+        let b_part = sum - a;
+        let a_part = sum - b_part;
+        (sum, (a - a_part) + (b - b_part))
+    };
+    let (mut sum, mut left, mut left_mass) = (terms[0], 0.0, 0.0);
+    for &term in &terms[1..] {
+        let (next, rounding) = two_sum(sum, term);
+        sum = next;
+        left += rounding;
+        left_mass += rounding.abs();
+    }
+    if left_mass == 0.0 {
+        return sum;
+    }
+    let (sum, rounding) = two_sum(sum, left);
+    // Adding up the leftovers may itself round, by far less than this.
+    let doubt = 4.0 * f64::EPSILON * left_mass;
+    if rounding < -doubt {
+        sum
+    } else {
+        sum.next_up()
+    }
+}
+
 /// A convex view volume: up to six half-spaces evaluated relative to an eye.
 ///
 /// Planes are stored relative to the eye so that the test keeps its precision
@@ -173,7 +205,9 @@ impl Frustum {
             if normal == Vec3::ZERO && d == f32::INFINITY {
                 return HalfSpace::INACTIVE;
             }
-            let offset = d as f64 + normal.as_dvec3().dot(eye.as_dvec3());
+            let (n, e) = (normal.as_dvec3(), eye.as_dvec3());
+            // Each product of two `f32` is exact in `f64`; only the sum rounds.
+            let offset = sum_at_least([d as f64, n.x * e.x, n.y * e.y, n.z * e.z]);
             HalfSpace::normalized(normal, offset)
         });
         Frustum::checked(eye, rebased)

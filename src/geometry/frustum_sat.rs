@@ -9,6 +9,11 @@ use super::{Aabb, Frustum};
 /// At most 3 box axes plus 15 plane-pair edges times 3 box axes.
 const MAX_AXES: usize = 48;
 
+/// A bound on the relative rounding of a box's projection in
+/// [`FrustumSat::separates`], with room to spare: about eight roundings of
+/// 2^-53 each, taken as 2^-49.
+const PROJECTION_ROUNDING: f64 = 1.0 / (1u64 << 49) as f64;
+
 /// How far (relative) a normal may lean along a volume's line and still
 /// count as across it, and the lean every axis across the line is widened
 /// by: one bound for both, so that the widening covers what the test lets
@@ -160,10 +165,17 @@ impl FrustumSat {
         let reach = self
             .line
             .map_or(0.0, |line| line.dot(centre).abs() + line.abs().dot(half));
+        // What the box's projection may be off by: the eye-relative corners,
+        // their centre and half, and the dot products each round in `f64`,
+        // by a few units of 2^-53 of the corners' magnitudes (which can
+        // dwarf the box's overlap with the frustum: a box from -1e15 to
+        // 0.03 reaches into a frustum that starts at 0.016 from the eye).
+        let magnitude = min.abs() + max.abs() + self.eye.abs();
         (0..self.count).any(|i| {
             let axis = self.axes[i];
             let c = axis.dot(centre);
-            let r = axis.abs().dot(half) + self.slope[i] * reach;
+            let rounding = PROJECTION_ROUNDING * axis.abs().dot(magnitude);
+            let r = axis.abs().dot(half) + self.slope[i] * reach + rounding;
             c + r < self.lo[i] || c - r > self.hi[i]
         })
     }
