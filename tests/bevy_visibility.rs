@@ -749,6 +749,52 @@ fn late_visibility_is_seen_where_no_entity_gets_the_handle() {
     assert_eq!(seen, vec![Some(true), Some(true)]);
 }
 
+/// A transform with a column near `f32::MAX` over a box flat along it:
+/// Bevy's box test then computes NaN for a plane, which culls nothing, so
+/// Bevy keeps an entity whose (small, valid) world box lies outside that
+/// plane. Such entities are decided by Bevy's test alone, as Bevy decides.
+#[test]
+fn entities_on_huge_columns_are_decided_as_bevy_decides() {
+    use glam::Affine3A;
+    let mut twins = Twins::new(17);
+    // At the origin, looking down -Z: the left plane's normal is about
+    // (0.92, 0, -0.38).
+    let camera =
+        twins.both(|world, _, _| world.spawn((Camera3d::default(), Transform::IDENTITY)).id());
+    twins.cameras.push(camera);
+    for i in 0..40 {
+        let pair = twins.both(|world, rng, _| {
+            // Left of the view, from just outside its plane (within the
+            // box's bounding sphere) to well outside; the first column is
+            // huge and meets a half extent of 0.
+            let at = Vec3::new(-5.2 - rng.range(0.0, 0.5), 0.0, -10.0);
+            let huge = f32::MAX * if i % 2 == 0 { 1.0 } else { 0.6 };
+            let columns =
+                Affine3A::from_cols(Vec3A::new(huge, 0.0, -huge), Vec3A::Y, Vec3A::Z, at.into());
+            world
+                .spawn((
+                    GlobalTransform::from(columns),
+                    Aabb {
+                        center: Vec3A::ZERO,
+                        half_extents: Vec3A::new(0.0, 1.0, 1.0),
+                    },
+                    Visibility::Visible,
+                    VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                ))
+                .id()
+        });
+        twins.entities.push(pair);
+    }
+    for frame in 0..3 {
+        twins.update();
+        // Half of them overflow Bevy's test: it keeps most of those.
+        let kept = twins.check(frame);
+        assert!((1..=20).contains(&kept), "frame {frame}: {kept}");
+    }
+    let index = twins.ours.world().resource::<SpatialIndex<Renderable>>();
+    index.validate().unwrap();
+}
+
 /// A tiny scale (1e-16 on every axis, whose determinant underflows `f32`)
 /// collapses no axis: such entities are indexed like any other, and seen
 /// as Bevy sees them.

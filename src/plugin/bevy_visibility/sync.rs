@@ -95,15 +95,29 @@ impl RenderableHandle {
     }
 }
 
+/// Beyond this, a transform's column may overflow `f32` in Bevy's box
+/// test (`f32::MAX / sqrt(3)` is the least that can), which then gives NaN
+/// and keeps the entity whatever its box.
+const COLUMN_BEYOND_BEVY_S_TEST: f32 = 1e37;
+
 /// The world box of a Bevy `Aabb` under a transform: the box around the
 /// oriented box Bevy's tests see, rounded outward ([contract S1](crate::contract)). An
-/// unusable one (NaN, a negative half extent, a collapsed axis) is the
-/// inverted box, which the index refuses and counts.
+/// unusable one (NaN, a negative half extent, a collapsed axis, a column
+/// too long for Bevy's own test to be decided by a box) is the inverted
+/// box, which the index refuses and counts: Bevy's test decides such an
+/// entity alone.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     let affine = transform.affine();
     // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
     // (a valid, tiny box) gives a determinant that underflows f32.
     if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
+        return Aabb::INVERTED;
+    }
+    // A column that long meets a half extent of 0 (any other gives a box
+    // beyond `MAX_COORD`): the world box is small, but Bevy's product of
+    // the two is NaN, which culls nothing.
+    let columns = affine.matrix3.to_cols_array();
+    if columns.iter().any(|v| v.abs() > COLUMN_BEYOND_BEVY_S_TEST) {
         return Aabb::INVERTED;
     }
     let center = Vec3::from(aabb.center);
