@@ -198,13 +198,16 @@ fn bevy_lights_shadow_what_bevy_would() {
 /// The small game: every enemy either sees the player or is blocked by
 /// its wall (every other one); the warnings are the oracle's enemy-barrel
 /// pairs within 5 m; each turret's hit is the oracle's first hit of the ray
-/// it cast, its own truck left out; the cargo rides with its truck.
+/// it cast, its own truck left out, and that ray is where the turret sits
+/// on its truck; the cargo rides with its truck.
 #[cfg(feature = "bevy_camera")]
 #[test]
 fn the_game_sees_hits_and_warns_as_brute_force_does() {
     use bevy_ecs::prelude::*;
     use bevy_rtree::JoinMode;
-    use bevy_rtree::plugin::{SpatialBounds, layer_oracle};
+    use bevy_rtree::plugin::{LocalBounds, RayCaster, SpatialBounds, layer_oracle};
+    use bevy_transform::prelude::Transform;
+    use glam::Vec3;
     let mut app = game::build();
     for _ in 0..5 {
         app.update();
@@ -221,17 +224,43 @@ fn the_game_sees_hits_and_warns_as_brute_force_does() {
     assert!(pairs > 0);
     let all = layer_oracle::<SpatialBounds>(app.world_mut());
     let world = app.world_mut();
+    // Where each truck is, from its own `Transform` (it has no parent).
+    let mut trucks = world.query_filtered::<&Transform, With<game::Truck>>();
+    let mut truck_at = |world: &World, truck: Entity| *trucks.get(world, truck).unwrap();
     let mut turrets = world.query::<(Entity, &RayCasterHits, &ChildOf)>();
-    let mut checked = 0;
+    let (mut checked, mut on_target) = (0, 0);
     for (turret, hits, child_of) in turrets.iter(world) {
         let ray = hits.ray().unwrap();
+        // The turret sits 1 m ahead and 0.5 m up in the cab, looking down
+        // the truck's +X.
+        let truck = truck_at(world, child_of.parent());
+        let origin = truck.transform_point(Vec3::new(1.0, 0.5, 0.0));
+        assert!((ray.origin - origin).length() < 1e-4, "{ray:?}");
+        assert!(
+            (ray.dir - truck.rotation * Vec3::X).length() < 1e-5,
+            "{ray:?}"
+        );
         let want = all
             .ray_hits(&ray)
             .unwrap()
             .into_iter()
             .find(|h| h.key != turret && h.key != child_of.parent());
         assert_eq!(hits.first().map(|h| h.key), want.map(|h| h.key));
+        on_target += usize::from(want.is_some());
         checked += 1;
     }
     assert_eq!(checked, 4);
+    assert!(on_target > 0, "no turret has a target to check");
+    // The cargo: a unit box 2.5 m above its truck's origin, indexed there.
+    let mut cargo = world
+        .query_filtered::<(&SpatialBounds, &ChildOf), (With<LocalBounds>, Without<RayCaster>)>();
+    let mut carried = 0;
+    for (bounds, child_of) in cargo.iter(world) {
+        let truck = truck_at(world, child_of.parent());
+        let centre = truck.transform_point(Vec3::new(0.0, 2.5, 0.0));
+        let middle = (bounds.0.min + bounds.0.max) * 0.5;
+        assert!((middle - centre).length() < 1e-4, "{bounds:?}");
+        carried += 1;
+    }
+    assert_eq!(carried, 4);
 }
