@@ -749,6 +749,18 @@ fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
         assert_eq!(join.pairs(), [(enemy, barrel)]);
         assert_eq!(join.error(), None);
     }
+    // A join that has nothing to pair never runs; its error is still the
+    // distance's, as it is now.
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(-1.0, JoinMode::Euclidean);
+    app.world_mut().spawn((unit_at(0.0), Enemy));
+    app.update();
+    let error = |app: &App| app.world().resource::<SpatialJoin<Enemy, Barrel>>().error();
+    assert_eq!(error(&app), Some(SpatialError::InvalidDistance));
+    app.world_mut()
+        .resource_mut::<SpatialJoin<Enemy, Barrel>>()
+        .distance = 1.0;
+    assert_eq!(error(&app), None);
     // Only this test uses the distance -7.25: warned about once.
     let lines = CAPTURED.0.lock().unwrap();
     let warned = lines

@@ -295,6 +295,13 @@ fn a_mirrored_caster_looks_the_mirrored_way() {
             Vec3::new(-4.0, 0.0, 0.0),
             6.0,
         ),
+        // A determinant that underflows f32 (1e-48) keeps its reflection.
+        (
+            Vec3::new(-1e-16, 1e-16, 1e-16),
+            west,
+            Vec3::new(-2e-16, 0.0, 0.0),
+            10.0,
+        ),
     ];
     let casters: Vec<Entity> = cases
         .iter()
@@ -314,7 +321,21 @@ fn a_mirrored_caster_looks_the_mirrored_way() {
             Transform::from_scale(Vec3::new(1.0, 0.0, 1.0)),
         ))
         .id();
+    // Turned about x as well: the f32 determinant's terms then underflow
+    // to zeros that sum to +0, and a split of the transform into scale and
+    // rotation in f32 loses the reflection.
+    let tiny_turned = app
+        .world_mut()
+        .spawn((
+            RayCaster::new(ray, RayMode::First),
+            Transform::from_scale(Vec3::new(-1e-16, 1e-16, 1e-16))
+                .with_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_4)),
+        ))
+        .id();
     app.update();
+    let hits = app.world().get::<RayCasterHits>(tiny_turned).unwrap();
+    assert_eq!(hits.first().map(|h| h.key), Some(west), "{:?}", hits.ray());
+    assert!((hits.first().unwrap().t - 10.0).abs() < 1e-4);
     for (&caster, &(scale, wall, origin, t)) in casters.iter().zip(&cases) {
         let hits = app.world().get::<RayCasterHits>(caster).unwrap();
         let cast = hits.ray().unwrap();

@@ -56,8 +56,8 @@ pub struct SpatialJoin<A: Component, B: Component> {
     /// What the pairs were computed from: both layers' generations, the
     /// distance and the mode.
     computed_from: Option<(u64, u64, u32, JoinMode)>,
-    /// The error of the distance last refused, with its bits.
-    refused: Option<(u32, SpatialError)>,
+    /// The bits of the distance last refused.
+    refused: Option<u32>,
     workspace: FrameWorkspace,
     _layers: PhantomData<fn() -> (A, B)>,
 }
@@ -106,7 +106,8 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
     /// # Ok::<(), SpatialError>(())
     /// ```
     pub fn error(&self) -> Option<SpatialError> {
-        self.refused.map(|(_, error)| error)
+        // The distance as it is now, whether or not the join has run since.
+        crate::geometry::predicates::check_distance(self.distance).err()
     }
 }
 
@@ -239,7 +240,7 @@ pub(crate) fn run_join<A: Component, B: Component>(
     // itself and is reported once, not every frame.
     let bits = join.distance.to_bits();
     let key = (a.generation(), b.generation(), bits, join.mode);
-    let still_refused = join.refused.is_some_and(|(refused, _)| refused == bits);
+    let still_refused = join.refused == Some(bits);
     if join.computed_from == Some(key) || still_refused {
         return;
     }
@@ -270,7 +271,7 @@ pub(crate) fn run_join<A: Component, B: Component>(
     if let Err(error) = result {
         // Only the distance can be wrong: no pairs until it is fixed.
         log::warn!("spatial join skipped: {error} (distance {})", join.distance);
-        join.refused = Some((bits, error));
+        join.refused = Some(bits);
         join.pairs.clear();
     }
     join.pairs.sort_unstable();

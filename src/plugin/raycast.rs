@@ -294,13 +294,19 @@ pub(crate) fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
     };
     let dir = ray.dir.as_dvec3();
     let length = dir.length();
-    // A mirroring transform keeps its reflection in the scale's signs (on
-    // x, as glam splits it): the direction takes those signs before it is
-    // turned, so that it is mirrored as the origin is, yet not stretched.
-    let (scale, rotation, _) = transform.to_scale_rotation_translation();
+    let unit = dir / length;
+    // Each local axis goes where the transform takes it, at unit length:
+    // turned, and mirrored where the transform mirrors (as the origin is),
+    // but not stretched. In `f64`, so that a tiny scale (1e-16) neither
+    // underflows nor loses its reflection, as a split into scale and
+    // rotation in `f32` would; a collapsed axis gives NaN, an invalid ray.
+    let m = transform.affine().matrix3.as_dmat3();
+    let turned = m.x_axis.normalize() * unit.x
+        + m.y_axis.normalize() * unit.y
+        + m.z_axis.normalize() * unit.z;
     Ray {
         origin: transform.transform_point(ray.origin),
-        dir: rotation * (scale.signum() * (dir / length).as_vec3()),
+        dir: turned.normalize().as_vec3(),
         max_t: (f64::from(ray.max_t) * length) as f32,
     }
 }
