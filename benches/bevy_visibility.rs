@@ -30,7 +30,7 @@ use bevy_mesh::Mesh3d;
 use bevy_rtree::scene::SceneRng;
 #[cfg(feature = "bevy_light")]
 use bevy_rtree::scene::TownScene;
-use bevy_town::{Motion, Mover, app, block, town, world_boxes_alone};
+use bevy_town::{Motion, Mover, app, block, camera_lists, town, world_boxes_alone};
 use bevy_transform::prelude::*;
 #[cfg(feature = "bevy_light")]
 use glam::Quat;
@@ -151,40 +151,42 @@ fn same_answers(bevy: &mut App, ours: &mut App) -> (usize, bool) {
         movers.sort_unstable_by_key(|m| m.0);
         movers.into_iter().map(|m| m.1).chain(others).collect()
     };
-    let lists = |app: &mut App| -> Vec<usize> {
-        let mut query = app.world_mut().query::<&VisibleEntities>();
-        query
-            .iter(app.world())
-            .map(|v| v.get(TypeId::of::<Mesh3d>()).len())
-            .collect()
-    };
     let (a, b) = (visible(bevy), visible(ours));
     let count = a.iter().filter(|&&v| v).count();
     (
         count,
-        a == b && lists(bevy) == lists(ours) && light_lists(bevy) == light_lists(ours),
+        a == b
+            && camera_lists(bevy) == camera_lists(ours)
+            && light_lists(bevy) == light_lists(ours),
     )
 }
 
-/// The lengths of every light's lists (cube faces, cascades).
+/// Every light's lists (cube faces, cascades), by slot.
 #[cfg(feature = "bevy_light")]
-fn light_lists(app: &mut App) -> Vec<usize> {
+fn light_lists(app: &mut App) -> Vec<Vec<u32>> {
     use bevy_camera::visibility::{CascadesVisibleEntities, CubemapVisibleEntities};
+    let slots = bevy_town::slots(app);
     let world = app.world_mut();
     let mut cubes = world.query::<&CubemapVisibleEntities>();
-    let mut out: Vec<usize> = cubes
+    let mut out: Vec<Vec<u32>> = cubes
         .iter(world)
-        .flat_map(|c| c.iter().map(|f| f.entities.len()))
+        .flat_map(|c| c.iter().map(|f| bevy_town::by_slot(&slots, &f.entities)))
         .collect();
     let mut cascades = world.query::<&CascadesVisibleEntities>();
     for lists in cascades.iter(world) {
-        out.extend(lists.entities.values().flatten().map(|l| l.entities.len()));
+        out.extend(
+            lists
+                .entities
+                .values()
+                .flatten()
+                .map(|l| bevy_town::by_slot(&slots, &l.entities)),
+        );
     }
     out
 }
 
 #[cfg(not(feature = "bevy_light"))]
-fn light_lists(_: &mut App) -> Vec<usize> {
+fn light_lists(_: &mut App) -> Vec<Vec<u32>> {
     Vec::new()
 }
 

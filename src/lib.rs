@@ -173,7 +173,8 @@
 //! two runs). Sphere and nearest-neighbour queries test
 //! lanes one by one and were not compared. Before the lane tests took four
 //! lanes at a time, width 16 made rays twice as slow, and 8 was the default.
-//! `cargo run --release --example accuracy_cost` compares all three widths.
+//! `cargo run --release --example accuracy_cost --features bevy_camera`
+//! compares all three widths.
 //!
 //! ## Layout
 //!

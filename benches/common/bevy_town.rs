@@ -87,6 +87,36 @@ pub struct Mover {
     pub slot: u32,
 }
 
+/// Each mover's slot by its entity: the twin Apps' entity ids and storage
+/// orders may differ, their slots do not.
+pub fn slots(app: &mut App) -> std::collections::HashMap<Entity, u32> {
+    let world = app.world_mut();
+    let mut movers = world.query::<(Entity, &Mover)>();
+    movers.iter(world).map(|(e, m)| (e, m.slot)).collect()
+}
+
+/// `entities` by their movers' slots (`u32::MAX` for any other), sorted.
+pub fn by_slot(slots: &std::collections::HashMap<Entity, u32>, entities: &[Entity]) -> Vec<u32> {
+    let mut named: Vec<u32> = entities
+        .iter()
+        .map(|e| slots.get(e).copied().unwrap_or(u32::MAX))
+        .collect();
+    named.sort_unstable();
+    named
+}
+
+/// Every camera's list of meshes, by slot (in the cameras' storage order).
+pub fn camera_lists(app: &mut App) -> Vec<Vec<u32>> {
+    use bevy_camera::visibility::VisibleEntities;
+    let slots = slots(app);
+    let world = app.world_mut();
+    let mut cameras = world.query::<&VisibleEntities>();
+    cameras
+        .iter(world)
+        .map(|v| by_slot(&slots, v.get(std::any::TypeId::of::<Mesh3d>())))
+        .collect()
+}
+
 /// The scene's movers and cameras, as a game would move them: through
 /// queries.
 #[derive(Resource)]

@@ -10,14 +10,11 @@
 #[path = "../../benches/common/bevy_town.rs"]
 mod bevy_town;
 
-use std::any::TypeId;
 use std::fmt::Write as _;
 
 use bevy_app::App;
-use bevy_camera::visibility::VisibleEntities;
-use bevy_mesh::Mesh3d;
 use bevy_rtree::plugin::{BevyVisibilitySettings, SpatialDiagnostics};
-use bevy_town::{Motion, app, block, town, world_boxes_alone};
+use bevy_town::{Motion, app, block, camera_lists, town, world_boxes_alone};
 
 use crate::{SEED, median};
 
@@ -68,11 +65,12 @@ pub fn measure() -> Vec<VisibilityRow> {
                 times[a].push(block(&mut apps[a], FRAMES).0 / 1e3);
             }
         }
-        let listed = apps.each_mut().map(listed);
+        let lists = apps.each_mut().map(camera_lists);
         assert!(
-            listed[1] == listed[0] && listed[2] == listed[0],
-            "the index lists what Bevy lists: {listed:?}"
+            lists[1] == lists[0] && lists[2] == lists[0],
+            "the index lists what Bevy lists"
         );
+        let listed = lists.map(|lists| lists.iter().map(Vec::len).sum::<usize>());
         let work = |app: &App| app.world().resource::<SpatialDiagnostics>().bevy_visibility;
         let (no_proof, proof) = (work(&apps[1]), work(&apps[2]));
         let (alone_ms, alone_listed) = world_boxes_alone(&mut apps[2]);
@@ -117,15 +115,6 @@ pub fn measure() -> Vec<VisibilityRow> {
 }
 
 /// Entity-camera pairs in the cameras' visible lists.
-fn listed(app: &mut App) -> usize {
-    let world = app.world_mut();
-    let mut cameras = world.query::<&VisibleEntities>();
-    cameras
-        .iter(world)
-        .map(|v| v.get(TypeId::of::<Mesh3d>()).len())
-        .sum()
-}
-
 /// The section's markdown (nothing without rows).
 pub fn markdown(rows: &[VisibilityRow], s: &mut String) {
     if rows.is_empty() {
