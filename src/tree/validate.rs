@@ -268,6 +268,127 @@ mod tests {
         assert!(broken.0.contains("copy of its bound"), "{broken}");
     }
 
+    /// Each invariant, broken alone in a valid tree, is reported by its
+    /// own message: the random-operation tests rely on `validate` as their
+    /// structural oracle.
+    #[test]
+    fn every_broken_invariant_is_reported() {
+        type Break = fn(&mut RTree<u32>);
+        fn first_child(tree: &RTree<u32>) -> usize {
+            tree.nodes[tree.root as usize].child[0] as usize
+        }
+        fn first_leaf(tree: &RTree<u32>) -> usize {
+            let mut node = tree.root as usize;
+            while !tree.nodes[node].is_leaf() {
+                node = tree.nodes[node].child[0] as usize;
+            }
+            node
+        }
+        let cases: [(&str, Break, &str); 12] = [
+            (
+                "a parent link",
+                |t| {
+                    let child = first_child(t);
+                    t.nodes[child].parent = 12_345;
+                },
+                "has parent",
+            ),
+            (
+                "a lane that misses its child",
+                |t| {
+                    let root = t.root as usize;
+                    let child = first_child(t);
+                    let mut lane = t.nodes[root].lane_box(0);
+                    lane.max.x = lane.min.x;
+                    t.nodes[root].set_lane_box(0, &lane);
+                    t.held_bounds[child] = lane;
+                },
+                "does not contain child",
+            ),
+            (
+                "an underfull node",
+                |t| {
+                    let leaf = first_leaf(t);
+                    t.nodes[leaf].len = 1;
+                },
+                "underfull",
+            ),
+            (
+                "a handle's lane",
+                |t| {
+                    let leaf = first_leaf(t);
+                    let proxy = t.nodes[leaf].child[0] as usize;
+                    t.proxies[proxy].lane += 1;
+                },
+                "points at",
+            ),
+            ("the length", |t| t.len += 1, "but len()"),
+            (
+                "an exact box outside its enlarged box",
+                |t| {
+                    let leaf = first_leaf(t);
+                    let proxy = t.nodes[leaf].child[0] as usize;
+                    t.proxies[proxy].fat.max.x = t.proxies[proxy].fat.min.x;
+                },
+                "misses exact box",
+            ),
+            (
+                "a visiting order",
+                |t| {
+                    let root = t.root as usize;
+                    t.nodes[root].order[0][0] = t.nodes[root].order[0][1];
+                },
+                "not a permutation",
+            ),
+            (
+                "an unused lane",
+                |t| {
+                    let root = t.root as usize;
+                    let len = t.nodes[root].len();
+                    t.nodes[root].child[len] = 0;
+                },
+                "unused but not cleared",
+            ),
+            (
+                "a child's level",
+                |t| {
+                    let child = first_child(t);
+                    t.nodes[child].level += 1;
+                },
+                "at level",
+            ),
+            ("the keys' length", |t| t.keys.push(7), "keys for"),
+            (
+                "a live node on the free list",
+                |t| {
+                    let child = first_child(t) as u32;
+                    t.free_nodes.push(child);
+                },
+                "reachable or listed twice",
+            ),
+            (
+                "a free slot listed twice",
+                |t| {
+                    let last = t.free_proxies.len() - 1;
+                    t.free_proxies[last] = t.free_proxies[0];
+                },
+                "listed twice",
+            ),
+        ];
+        for (what, break_it, message) in cases {
+            let mut tree = tree();
+            // Two free slots for the free list's case.
+            for key in [10u32, 20] {
+                let id = tree.iter().find(|(_, k, _)| *k == key).unwrap().0;
+                tree.remove(id).unwrap();
+            }
+            tree.validate().unwrap();
+            break_it(&mut tree);
+            let broken = tree.validate().unwrap_err();
+            assert!(broken.0.contains(message), "{what}: {broken}");
+        }
+    }
+
     #[test]
     fn a_root_whose_copy_is_not_all_space_is_reported() {
         let mut tree = tree();
