@@ -688,16 +688,18 @@ fn many_views_in_one_traversal_match_single_views() {
             .unwrap()
         })
         .collect();
-    let mut out = vec![Vec::new(); views.len()];
-    tree.visible_into(
-        &views,
-        CullMode::Conservative,
-        &mut QueryWorkspace::default(),
-        &mut out,
-    );
-    for (view, mut keys) in views.iter().zip(out) {
-        keys.sort_unstable();
-        assert!(!keys.is_empty());
-        assert_eq!(keys, tree.visible(view, CullMode::Conservative));
+    let mut oracle = BruteForce::default();
+    for (_, key, aabb) in tree.iter() {
+        oracle.insert(key, aabb);
+    }
+    for mode in [CullMode::Conservative, CullMode::Exact] {
+        let mut out = vec![Vec::new(); views.len()];
+        tree.visible_into(&views, mode, &mut QueryWorkspace::default(), &mut out);
+        for (view, mut keys) in views.iter().zip(out) {
+            keys.sort_unstable();
+            assert!(!keys.is_empty());
+            assert_eq!(keys, tree.visible(view, mode));
+            assert_eq!(keys, oracle.visible(view, mode));
+        }
     }
 }

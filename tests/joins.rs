@@ -364,7 +364,74 @@ fn a_small_tree_joined_with_a_large_one_visits_only_what_it_can_reach() {
         let mut swapped = Vec::new();
         town.cross_join_into(&small, d, JoinMode::Euclidean, &mut ws, &mut swapped)
             .unwrap();
+        let want_swapped = town_oracle.cross_join(&small_oracle, d, JoinMode::Euclidean);
+        swapped.sort_unstable();
+        assert_eq!(swapped, want_swapped.unwrap());
         assert_eq!(swapped.len(), pairs.len());
         assert!(ws.take_stats().nodes_visited < 40);
+    }
+}
+
+/// A visitor that breaks is not called again, and what it saw before are
+/// pairs of the join, each once: self and cross joins of the town, broken
+/// after 1, 7 and 200 pairs.
+#[test]
+fn joins_stop_where_their_visitor_breaks() {
+    use std::ops::ControlFlow;
+    let (_, tree, _) = common::town_tree(4_000, 21);
+    let (_, other, _) = common::town_tree(3_000, 22);
+    let oracle_of = |tree: &RTree<u32>| {
+        let mut oracle = BruteForce::default();
+        for (_, key, aabb) in tree.iter() {
+            oracle.insert(key, aabb);
+        }
+        oracle
+    };
+    let self_pairs: BTreeSet<(u32, u32)> = oracle_of(&tree)
+        .self_join(5.0, JoinMode::Euclidean)
+        .unwrap()
+        .into_iter()
+        .collect();
+    let cross_pairs: BTreeSet<(u32, u32)> = oracle_of(&tree)
+        .cross_join(&oracle_of(&other), 5.0, JoinMode::Euclidean)
+        .unwrap()
+        .into_iter()
+        .collect();
+    assert!(
+        self_pairs.len() > 200 && cross_pairs.len() > 200,
+        "{} and {} pairs",
+        self_pairs.len(),
+        cross_pairs.len()
+    );
+    let mut ws = QueryWorkspace::default();
+    for stop in [1usize, 7, 200] {
+        let mut seen = Vec::new();
+        tree.visit_self_join(5.0, JoinMode::Euclidean, &mut ws, |a, b| {
+            seen.push((a.min(b), a.max(b)));
+            if seen.len() == stop {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .unwrap();
+        assert_eq!(seen.len(), stop, "self join");
+        let distinct: BTreeSet<_> = seen.iter().copied().collect();
+        assert_eq!(distinct.len(), stop);
+        assert!(distinct.is_subset(&self_pairs));
+        let mut seen = Vec::new();
+        tree.visit_cross_join(&other, 5.0, JoinMode::Euclidean, &mut ws, |a, b| {
+            seen.push((a, b));
+            if seen.len() == stop {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .unwrap();
+        assert_eq!(seen.len(), stop, "cross join");
+        let distinct: BTreeSet<_> = seen.iter().copied().collect();
+        assert_eq!(distinct.len(), stop);
+        assert!(distinct.is_subset(&cross_pairs));
     }
 }

@@ -586,3 +586,34 @@ fn bad_input_returns_the_typed_error_and_leaves_the_tree_unchanged() {
         ],
     );
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    /// The k nearest allowed entries are the oracle's nearest with the
+    /// left-out keys removed (a filter worked out here), cut to k: on a
+    /// grid, where equal distances are common.
+    #[test]
+    fn the_nearest_allowed_are_the_nearest_with_the_others_left_out(
+        boxes in prop::collection::vec(common::grid_box(), 1..200),
+        point in common::grid_point(),
+        k in 1usize..9,
+        skip in 2u32..5,
+        max in prop::option::of(0.0f32..6.0),
+    ) {
+        let mut tree = RTree::<u32, 8>::with_settings(TreeSettings::default()).unwrap();
+        let mut oracle = BruteForce::default();
+        for (i, b) in boxes.iter().enumerate() {
+            tree.insert(i as u32, *b).unwrap();
+            oracle.insert(i as u32, *b);
+        }
+        let allowed = |key: u32| !key.is_multiple_of(skip);
+        let mut expected = oracle.nearest(point, boxes.len(), max).unwrap();
+        expected.retain(|n| allowed(n.key));
+        expected.truncate(k);
+        let mut got = Vec::new();
+        tree.nearest_where_into(point, k, max, &mut QueryWorkspace::default(), &mut got, allowed)
+            .unwrap();
+        prop_assert_eq!(got, expected);
+    }
+}
