@@ -36,6 +36,10 @@ struct Driver {
     casters: Vec<Entity>,
     open_pairs: Vec<(Entity, Entity)>,
     frames: usize,
+    /// What the checks compared over the run, summed: entities seen by the
+    /// cameras, casters' hits, and enemy-barrel pairs (a soak whose
+    /// answers were all empty would check nothing).
+    compared: [usize; 3],
 }
 
 /// A disabling component stored in a sparse set, never given to an entity:
@@ -64,6 +68,7 @@ impl Driver {
             casters: Vec::new(),
             open_pairs: Vec::new(),
             frames: 0,
+            compared: [0; 3],
         }
     }
 
@@ -366,6 +371,7 @@ impl Driver {
                 expected,
                 "frame {frame}: camera {camera}"
             );
+            self.compared[0] += expected.len();
         }
         for &caster in &self.casters {
             let ray_caster = world.get::<RayCaster>(caster).expect("caster");
@@ -383,6 +389,7 @@ impl Driver {
                         RayMode::Any => &[],
                     };
                     assert_eq!(answer.hits(), expected, "frame {frame}: caster {caster}");
+                    self.compared[1] += hits.len();
                 }
             }
         }
@@ -392,6 +399,7 @@ impl Driver {
             .expect("valid distance");
         let join = world.resource::<SpatialJoin<Enemy, Barrel>>();
         assert_eq!(join.pairs(), expected, "frame {frame}: enemy-barrel pairs");
+        self.compared[2] += expected.len();
         let expected_self = enemies
             .self_join(ENEMY_SELF_DISTANCE, JoinMode::Chebyshev)
             .expect("valid distance");
@@ -477,7 +485,12 @@ fn soak(seed: u64, frames: usize, row_by_row: bool) {
     for _ in 0..frames {
         driver.step();
     }
-    assert!(driver.frames == frames);
+    assert_eq!(driver.frames, frames);
+    let [visible, hits, pairs] = driver.compared;
+    assert!(
+        visible > 0 && hits > 0 && pairs > 0,
+        "answers compared: {visible} visible, {hits} hits, {pairs} pairs"
+    );
 }
 
 #[test]

@@ -106,6 +106,10 @@ struct Model {
     next_key: u32,
     profile: Profile,
     rng: SceneRng,
+    /// How often each checked family had a non-empty answer: box overlap,
+    /// point, first hit, a view, the self join (a run whose answers were
+    /// all empty would check little).
+    answered: [usize; 5],
 }
 
 impl Model {
@@ -263,17 +267,31 @@ impl Model {
         for q in [query, grown] {
             assert_eq!(tree.overlapping(&q), self.oracle.overlapping(&q));
         }
-        let point = query.min;
-        assert_eq!(
-            tree.containing_point(point),
-            self.oracle.containing_point(point)
-        );
+        self.answered[0] += usize::from(!self.oracle.overlapping(&grown).is_empty());
+        // A corner of the query, or the middle of a live entry (which holds
+        // it): a point that hits something now and then.
+        let entries = self.oracle.entries();
+        let point = if self.rng.below(2) == 0 || entries.is_empty() {
+            query.min
+        } else {
+            let (_, inside) = entries[self.rng.below(entries.len())];
+            (inside.min + inside.max) * 0.5
+        };
+        let at_point = self.oracle.containing_point(point);
+        assert_eq!(tree.containing_point(point), at_point);
+        self.answered[1] += usize::from(!at_point.is_empty());
 
+        // Towards the middle of a random box, with a unit direction (worked
+        // out in f64, so that the Tiny profile's subnormal offsets give a
+        // valid ray) and the segment's length in metres.
         let target = random_box(&mut self.rng, self.profile);
-        let towards = (target.min + target.max) * 0.5 - point;
-        let length = [1.0, 3.0, f32::INFINITY][self.rng.below(3)];
-        if let Ok(ray) = Ray::new(point, towards, length) {
-            assert_eq!(tree.cast_ray(&ray, ws), self.oracle.ray_first(&ray));
+        let towards = ((target.min + target.max) * 0.5 - point).as_dvec3();
+        let distance = towards.length();
+        let reach = [1.0, 3.0, f64::INFINITY][self.rng.below(3)] * distance;
+        if let Ok(ray) = Ray::new(point, (towards / distance).as_vec3(), reach as f32) {
+            let first = self.oracle.ray_first(&ray);
+            assert_eq!(tree.cast_ray(&ray, ws), first);
+            self.answered[2] += usize::from(matches!(first, Ok(Some(_))));
             let mut hits = Vec::new();
             let all = tree.cast_ray_all(&ray, None, ws, &mut hits);
             assert_eq!(all.map(|()| hits), self.oracle.ray_hits(&ray));
@@ -296,7 +314,9 @@ impl Model {
         views.extend(Frustum::new(eye, [slab, side, i, i, i, i]));
         for view in &views {
             for mode in [CullMode::Conservative, CullMode::Exact] {
-                assert_eq!(tree.visible(view, mode), self.oracle.visible(view, mode));
+                let seen = self.oracle.visible(view, mode);
+                assert_eq!(tree.visible(view, mode), seen);
+                self.answered[3] += usize::from(!seen.is_empty());
             }
         }
 
@@ -304,6 +324,7 @@ impl Model {
         for mode in [JoinMode::Euclidean, JoinMode::Chebyshev] {
             let all = self.oracle.self_join(distance, mode).unwrap();
             assert_eq!(tree.self_join(distance, mode).unwrap(), all);
+            self.answered[4] += usize::from(!all.is_empty());
             let ids: Vec<ProxyId> = moved.iter().map(|m| m.1).collect();
             let mut got = Vec::new();
             tree.visit_self_join_moved(&ids, distance, mode, ws, |a, b| {
@@ -347,6 +368,7 @@ fn soak(steps: usize, seed: u64) {
             next_key: 0,
             profile,
             rng: SceneRng::new(seed + p as u64),
+            answered: [0; 5],
         };
         let mut swaps = 0;
         // On until a rebuild was swapped in, up to four times the steps:
@@ -370,6 +392,11 @@ fn soak(steps: usize, seed: u64) {
         }
         // Rebuilds were swapped in among the other operations.
         assert!(swaps >= 1, "{profile:?}: {swaps} rebuilds swapped in");
+        let answered = model.answered;
+        assert!(
+            answered.iter().all(|&n| n > 0),
+            "{profile:?}: non-empty answers per family {answered:?}"
+        );
     }
 }
 
