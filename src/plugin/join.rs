@@ -56,8 +56,6 @@ pub struct SpatialJoin<A: Component, B: Component> {
     /// What the pairs were computed from: both layers' generations, the
     /// distance and the mode.
     computed_from: Option<(u64, u64, u32, JoinMode)>,
-    /// The bits of the distance last refused.
-    refused: Option<u32>,
     workspace: FrameWorkspace,
     _layers: PhantomData<fn() -> (A, B)>,
 }
@@ -70,7 +68,6 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
             pairs: Vec::new(),
             previous: Vec::new(),
             computed_from: None,
-            refused: None,
             workspace: FrameWorkspace::default(),
             _layers: PhantomData,
         }
@@ -240,8 +237,11 @@ pub(crate) fn run_join<A: Component, B: Component>(
     // itself and is reported once, not every frame.
     let bits = join.distance.to_bits();
     let key = (a.generation(), b.generation(), bits, join.mode);
-    let still_refused = join.refused == Some(bits);
-    if join.computed_from == Some(key) || still_refused {
+    // A refused distance that was already run (pairs cleared, warned)
+    // waits for a valid one, whatever the layers do.
+    let refused_again =
+        join.computed_from.is_some_and(|(.., was, _)| was == bits) && join.error().is_some();
+    if join.computed_from == Some(key) || refused_again {
         return;
     }
     join.computed_from = Some(key);
@@ -267,11 +267,9 @@ pub(crate) fn run_join<A: Component, B: Component>(
             &mut join.pairs,
         )
     };
-    join.refused = None;
     if let Err(error) = result {
         // Only the distance can be wrong: no pairs until it is fixed.
         log::warn!("spatial join skipped: {error} (distance {})", join.distance);
-        join.refused = Some(bits);
         join.pairs.clear();
     }
     join.pairs.sort_unstable();
