@@ -404,34 +404,34 @@ fn joins_stop_where_their_visitor_breaks() {
         cross_pairs.len()
     );
     let mut ws = QueryWorkspace::default();
+    // Records each pair, and breaks at the `stop`-th.
+    let until = |stop: usize, seen: &mut Vec<(u32, u32)>, pair: (u32, u32)| {
+        seen.push(pair);
+        if seen.len() == stop {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    };
+    // Exactly `stop` pairs, distinct, all of the join.
+    let check = |seen: Vec<(u32, u32)>, stop: usize, join: &BTreeSet<(u32, u32)>, what: &str| {
+        assert_eq!(seen.len(), stop, "{what}");
+        let distinct: BTreeSet<_> = seen.into_iter().collect();
+        assert_eq!(distinct.len(), stop, "{what}");
+        assert!(distinct.is_subset(join), "{what}");
+    };
     for stop in [1usize, 7, 200] {
         let mut seen = Vec::new();
         tree.visit_self_join(5.0, JoinMode::Euclidean, &mut ws, |a, b| {
-            seen.push((a.min(b), a.max(b)));
-            if seen.len() == stop {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
+            until(stop, &mut seen, (a.min(b), a.max(b)))
         })
         .unwrap();
-        assert_eq!(seen.len(), stop, "self join");
-        let distinct: BTreeSet<_> = seen.iter().copied().collect();
-        assert_eq!(distinct.len(), stop);
-        assert!(distinct.is_subset(&self_pairs));
+        check(seen, stop, &self_pairs, "self join");
         let mut seen = Vec::new();
         tree.visit_cross_join(&other, 5.0, JoinMode::Euclidean, &mut ws, |a, b| {
-            seen.push((a, b));
-            if seen.len() == stop {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
+            until(stop, &mut seen, (a, b))
         })
         .unwrap();
-        assert_eq!(seen.len(), stop, "cross join");
-        let distinct: BTreeSet<_> = seen.iter().copied().collect();
-        assert_eq!(distinct.len(), stop);
-        assert!(distinct.is_subset(&cross_pairs));
+        check(seen, stop, &cross_pairs, "cross join");
     }
 }

@@ -395,14 +395,14 @@ pub(crate) fn cast_rays<L: Component>(
                         .extend(tree.cast_ray_where(ray, ws, allow).ok().flatten());
                     answer.any = !answer.hits.is_empty();
                 }
+                // No hit listed: only whether an allowed one exists, in one
+                // walk.
+                RayMode::Any | RayMode::All { limit: Some(0) } => {
+                    answer.any = tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false);
+                }
                 RayMode::All { limit } => {
                     let _ = tree.cast_ray_all_where(ray, limit, ws, &mut answer.hits, allow);
-                    answer.any = !answer.hits.is_empty()
-                        || (limit == Some(0)
-                            && tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false));
-                }
-                RayMode::Any => {
-                    answer.any = tree.ray_hits_any_where(ray, ws, allow).unwrap_or(false);
+                    answer.any = !answer.hits.is_empty();
                 }
             }
         }
