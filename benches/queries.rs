@@ -107,7 +107,7 @@ const RAYS_PER_BATCH: usize = 1_000;
 const SELF_JOIN_DISTANCE: f32 = 0.0;
 
 // ---------------------------------------------------------------------------
-// The predicates of SEMANTICS.md for the peers. Rays use the crate's own S4
+// The predicates of the contract (`docs/contract.md`) for the peers. Rays use the crate's own S4
 // test (`PreparedRay`). The frustum test is restated over the active planes
 // only, in the crate's operation order, so a peer's answer compares bit for
 // bit and its traversal is not slowed by inactive planes; the brute force's

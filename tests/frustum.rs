@@ -1,5 +1,5 @@
 //! Frustum culling against the oracle: random scenes and views, and the
-//! frustum hard cases of SEMANTICS.md.
+//! frustum hard cases of the contract (`docs/contract.md`).
 
 mod common;
 

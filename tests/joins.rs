@@ -1,6 +1,6 @@
 //! Distance joins against the oracle: random grid scenes where boxes touch
 //! and gaps are exact, the incremental "moved" join, and the join hard cases
-//! of SEMANTICS.md.
+//! of the contract (`docs/contract.md`).
 
 mod common;
 

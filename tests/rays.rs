@@ -1,6 +1,6 @@
 //! Raycasts against the oracle: random scenes on a coarse grid where rays
 //! graze faces and edges, batches with invalid rays, and the ray hard cases
-//! of SEMANTICS.md.
+//! of the contract (`docs/contract.md`).
 
 mod common;
 

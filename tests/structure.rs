@@ -1,4 +1,4 @@
-//! The structure cases of SEMANTICS.md: orderings of inserts and removals,
+//! The structure cases of the contract (`docs/contract.md`): orderings of inserts and removals,
 //! identical boxes, sorted and gridded input, huge teleports, and the
 //! height the tree keeps on each.
 
