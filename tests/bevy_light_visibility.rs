@@ -493,3 +493,57 @@ fn systems_between_bevy_s_two_light_systems_make_no_cycle() {
         app.update();
     }
 }
+
+/// A directional light whose view has no cascades (a `CascadeShadowConfig`
+/// with no bounds) lists nothing, but Bevy still marks the casters it
+/// cannot bound (no `Aabb`) visible: so must the index. The caster is on a
+/// layer the camera does not render, so only the light can mark it.
+#[test]
+fn a_view_without_cascades_still_marks_unbounded_casters() {
+    use bevy_light::CascadeShadowConfig;
+    let mut apps = [app(false), app(true)];
+    let casters = apps.each_mut().map(|app| {
+        let world = app.world_mut();
+        world.spawn((Camera3d::default(), Transform::from_xyz(0.0, 2.0, 10.0)));
+        world.spawn((
+            DirectionalLight {
+                shadow_maps_enabled: true,
+                ..DirectionalLight::default()
+            },
+            CascadeShadowConfig {
+                bounds: Vec::new(),
+                ..CascadeShadowConfig::default()
+            },
+            RenderLayers::from_layers(&[0, 1]),
+            Transform::from_xyz(1.0, 3.0, 2.0).looking_at(Vec3::ZERO, Vec3::Y),
+        ));
+        let unbounded = world
+            .spawn((
+                Mesh3d::default(),
+                Transform::default(),
+                RenderLayers::layer(1),
+            ))
+            .id();
+        let bounded = world
+            .spawn((
+                Mesh3d::default(),
+                Transform::default(),
+                RenderLayers::layer(1),
+                bevy_camera::primitives::Aabb::from_min_max(Vec3::splat(-1.0), Vec3::ONE),
+            ))
+            .id();
+        [unbounded, bounded]
+    });
+    for frame in 0..3 {
+        apps.iter_mut().for_each(App::update);
+        let [bevy, ours] = [0, 1].map(|side| {
+            casters[side].map(|e| apps[side].world().get::<ViewVisibility>(e).map(|v| v.get()))
+        });
+        assert_eq!(bevy, ours, "frame {frame}");
+        assert_eq!(
+            bevy,
+            [Some(true), Some(false)],
+            "frame {frame}: Bevy marks the unbounded caster only"
+        );
+    }
+}

@@ -235,6 +235,43 @@ pub(super) fn check_light_visibility_from_index(
                 list.entities.clear();
                 list.entities.append(cascade);
             }
+            if view_frusta.is_empty() {
+                mark_unbounded_casters(&mut casters, &scratch.one_by_one, &mask, *view, ranges);
+            }
+        }
+    }
+}
+
+/// A view with no cascades still sees the casters Bevy cannot bound (no
+/// `Aabb` or no transform): Bevy marks them visible before it looks at the
+/// cascades, and lists them in none.
+fn mark_unbounded_casters(
+    casters: &mut Query<Caster<'_>, CasterFilter>,
+    one_by_one: &[Entity],
+    mask: &RenderLayers,
+    view: Entity,
+    ranges: Option<&VisibleEntityRanges>,
+) {
+    for &entity in one_by_one {
+        let Ok(item) = casters.get_mut(entity) else {
+            continue;
+        };
+        let (entity, inherited, mut view_visibility, entity_mask, aabb, transform, has_range, _) =
+            item;
+        let unbounded = aabb.is_none() || transform.is_none();
+        let origin = Some(view);
+        if unbounded
+            && may_cast(
+                entity,
+                inherited,
+                entity_mask,
+                has_range,
+                mask,
+                origin,
+                ranges,
+            )
+        {
+            mark(&mut view_visibility);
         }
     }
 }
