@@ -828,3 +828,70 @@ fn entities_of_a_tiny_scale_are_indexed_and_seen_as_bevy_sees_them() {
     assert_eq!(index.unindexed().count(), 0);
     assert_eq!(index.len(), 200);
 }
+
+/// The renderables' layer belongs to `BevyVisibilityPlugin`: a join over
+/// it, registered after the plugin, shares its one index, and a mesh the
+/// app takes out of its own index (`NoSpatialIndex`) stays in the
+/// renderables' and is seen as Bevy sees it.
+#[test]
+fn a_join_over_the_renderables_shares_their_index() {
+    use bevy_rtree::JoinMode;
+    use bevy_rtree::plugin::{NoSpatialIndex, SpatialAppExt, SpatialJoin};
+    let mut bevy = app(false);
+    let mut ours = app(true);
+    ours.add_spatial_join::<Renderable, Renderable>(1.0, JoinMode::Euclidean);
+    let meshes = [&mut bevy, &mut ours].map(|app| {
+        let world = app.world_mut();
+        world.spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0)));
+        let spawn = |world: &mut World, x: f32| {
+            world
+                .spawn((
+                    Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+                    Transform::from_xyz(x, 0.0, 0.0),
+                    Visibility::Visible,
+                    VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                ))
+                .id()
+        };
+        [spawn(world, 0.0), spawn(world, 1.5)]
+    });
+    for frame in 0..3 {
+        if frame == 1 {
+            for (app, pair) in [&mut bevy, &mut ours].into_iter().zip(&meshes) {
+                app.world_mut().entity_mut(pair[0]).insert(NoSpatialIndex);
+            }
+        }
+        bevy.update();
+        ours.update();
+        let apps = [&bevy, &ours];
+        let [seen_by_bevy, seen_by_ours] = [0, 1].map(|side| {
+            meshes[side].map(|e| apps[side].world().get::<ViewVisibility>(e).unwrap().get())
+        });
+        assert_eq!(seen_by_bevy, [true, true], "frame {frame}");
+        assert_eq!(seen_by_ours, seen_by_bevy, "frame {frame}");
+        let index = ours.world().resource::<SpatialIndex<Renderable>>();
+        index.validate().unwrap();
+        assert_eq!(index.len(), 2, "frame {frame}");
+        let join = ours
+            .world()
+            .resource::<SpatialJoin<Renderable, Renderable>>();
+        assert_eq!(
+            join.pairs().len(),
+            1,
+            "frame {frame}: the two meshes 0.5 m apart"
+        );
+    }
+}
+
+/// The other order, a join over the renderables before the plugin that
+/// fills them, is refused with a message that names the fix.
+#[test]
+#[should_panic(expected = "add BevyVisibilityPlugin before")]
+fn a_renderables_layer_before_the_plugin_is_refused() {
+    use bevy_rtree::JoinMode;
+    use bevy_rtree::plugin::SpatialAppExt;
+    let mut app = App::new();
+    app.add_plugins((TransformPlugin, CameraPlugin, SpatialIndexPlugin::default()))
+        .add_spatial_join::<Renderable, Renderable>(1.0, JoinMode::Euclidean)
+        .add_plugins(BevyVisibilityPlugin);
+}

@@ -23,7 +23,7 @@
 //! use bevy_ecs::prelude::*;
 //! use bevy_rtree::{Aabb, Ray, RayMode};
 //! use bevy_rtree::plugin::*;
-//! use glam::Vec3;
+//! use bevy_rtree::glam::Vec3;
 //!
 //! let mut app = App::new();
 //! app.add_plugins(SpatialIndexPlugin::default());
@@ -346,6 +346,18 @@ impl SpatialAppExt for App {
                 std::any::type_name::<L>()
             );
         };
+        // The renderables' layer is filled from Bevy's own components by
+        // `BevyVisibilityPlugin`, which registers it; a generic layer of
+        // that name would add a second set of systems and observers over
+        // the same index (entries taken out by `NoSpatialIndex`, two
+        // maintenance systems cancelling each other's rebuilds).
+        #[cfg(feature = "bevy_camera")]
+        if std::any::TypeId::of::<L>() == std::any::TypeId::of::<bevy_visibility::Renderable>() {
+            panic!(
+                "the Renderable layer is BevyVisibilityPlugin's: add BevyVisibilityPlugin \
+                 before add_spatial_layer::<Renderable> or add_spatial_join over it"
+            );
+        }
         self.insert_resource(index::SpatialIndex::<L>::new(config.tree));
         register_layer_queries::<L>(self, &config);
         let mut schedules = vec![config.schedule];
