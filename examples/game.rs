@@ -31,9 +31,12 @@ pub struct Seen {
     /// Enemies with a clear line of sight to the player.
     pub enemies_seeing_player: usize,
     /// Enemies whose line of sight is blocked.
-    pub enemies_blocked: usize,
-    /// Enemies warned by a barrel within 5 m since the start.
-    pub warnings: usize,
+    pub blocked: Vec<Entity>,
+    /// Each enemy warned by a barrel within 5 m since the start, as
+    /// `(enemy, barrel)`.
+    pub warned: Vec<(Entity, Entity)>,
+    /// Lines of sight the index refused (none, with valid rays).
+    pub refused: usize,
 }
 
 /// Units the handful of systems below move or read.
@@ -130,22 +133,24 @@ fn look_for_the_player(
     let others: Vec<Entity> = enemies.iter().map(|(e, _)| e).collect();
     let filter = SpatialQueryFilter::excluding(others);
     seen.enemies_seeing_player = 0;
-    seen.enemies_blocked = 0;
-    for (_, enemy) in &enemies {
+    seen.blocked.clear();
+    for (entity, enemy) in &enemies {
         let Ok(ray) = Ray::segment(enemy.translation(), target.translation()) else {
             continue;
         };
         match spatial.cast_ray(&ray, &filter) {
             Ok(Some(hit)) if hit.key == player => seen.enemies_seeing_player += 1,
-            Ok(Some(_)) => seen.enemies_blocked += 1,
-            _ => {}
+            Ok(Some(_)) => seen.blocked.push(entity),
+            Ok(None) => {}
+            Err(_) => seen.refused += 1,
         }
     }
 }
 
 /// A barrel within 5 m warns the enemy, once per pair.
 fn warn_enemies(mut started: MessageReader<PairStarted<Enemy, Barrel>>, mut seen: ResMut<Seen>) {
-    seen.warnings += started.read().count();
+    seen.warned
+        .extend(started.read().map(|pair| (pair.a, pair.b)));
 }
 
 fn main() {
@@ -155,8 +160,8 @@ fn main() {
         let seen = app.world().resource::<Seen>();
         let (seeing, blocked, warned) = (
             seen.enemies_seeing_player,
-            seen.enemies_blocked,
-            seen.warnings,
+            seen.blocked.len(),
+            seen.warned.len(),
         );
         let visible: usize = {
             let world = app.world_mut();
