@@ -9,7 +9,7 @@
 //!
 //! ```
 //! use bevy_rtree::{Aabb, RTree};
-//! use glam::Vec3;
+//! use bevy_rtree::glam::Vec3;
 //!
 //! let mut tree = RTree::new();
 //! let barrel = tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
@@ -31,7 +31,7 @@
 //! use bevy_app::prelude::*;
 //! use bevy_rtree::plugin::*;
 //! use bevy_rtree::{Aabb, Ray, RayMode};
-//! use glam::{Quat, Vec3};
+//! use bevy_rtree::glam::{Quat, Vec3};
 //!
 //! let mut app = App::new();
 //! app.add_plugins(SpatialIndexPlugin::default());
@@ -132,7 +132,8 @@
 //!
 //! ## Accuracy options
 //!
-//! Two knobs trade precision for time; neither ever drops a right answer:
+//! Two knobs trade precision for time; neither drops a right answer (but
+//! for a frustum of next to no volume, which exact mode may see as empty):
 //! - [`CullMode::Conservative`] (default) may report a large box near a
 //!   frustum edge that is really outside; [`CullMode::Exact`] removes those
 //!   with a separating-axis test in `f64`.
@@ -156,23 +157,17 @@
 //!
 //! ## Node width
 //!
-//! `RTree<K, W>` takes 4, 8 or 16 children per node (any multiple of 4 up
-//! to 16); 16 is the default. Box, ray and frustum lane tests run four
+//! `RTree<K, W>` takes 4, 8, 12 or 16 children per node (any multiple of
+//! 4 up to 16); 16 is the default. Box, ray and frustum lane tests run four
 //! lanes at a time, so a wider node costs little more to test and saves
-//! levels: on the standard scene the tree is 5 levels deep instead of 6 (7
-//! after churn). Measured with `cargo bench --bench tree` and
-//! `--bench queries`, one run at width 8 and the next at width 16, same
-//! machine: bulk load 25.6 → 19.0 ms, 100,000 inserts 108 → 87 ms, 1,000
-//! box queries 0.24 → 0.19 ms fresh and 0.39 → 0.26 ms churned, a cull
-//! 0.100 → 0.073 ms, 1,000 incoherent rays 0.87 → 0.74 ms, the cross join
-//! 0.37 → 0.31 ms and the self join 8.2 → 6.6 ms; a frame's 10,000 moves
-//! took 0.73 ms at width 8 and 0.72 and 0.83 ms in two runs at width 16,
-//! within this machine's noise (all repacking a level-1 node after 16
-//! restructuring moves; at width 16, [`TreeSettings::repack_fraction`]'s
-//! default now waits for 64, and the moves took 0.57–0.58 ms in the next
-//! two runs). Sphere and nearest-neighbour queries test
-//! lanes one by one and were not compared. Before the lane tests took four
-//! lanes at a time, width 16 made rays twice as slow, and 8 was the default.
+//! levels: on the standard scene the tree is 5 levels deep instead of 6.
+//! Measured on one machine with `cargo bench --bench tree` and `--bench
+//! queries`, width 8 against width 16: bulk load 25.6 against 19.0 ms,
+//! 1,000 box queries 0.24 against 0.19 ms, a cull 0.100 against 0.073 ms,
+//! 1,000 incoherent rays 0.87 against 0.74 ms and the self join 8.2
+//! against 6.6 ms; a frame's 10,000 moves cost the same within noise.
+//! Sphere and nearest-neighbour queries test lanes one by one and were not
+//! compared.
 //! `cargo run --release --example accuracy_cost --features bevy_camera`
 //! compares all three widths.
 //!

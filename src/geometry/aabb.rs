@@ -24,7 +24,7 @@ pub const MAX_COORD: f32 = 1e15;
 ///
 /// ```
 /// use bevy_rtree::Aabb;
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
 /// let touching = Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0))?;
@@ -179,7 +179,7 @@ impl Aabb {
     ///
     /// ```
     /// use bevy_rtree::Aabb;
-    /// use glam::{Affine3A, Vec3};
+    /// use bevy_rtree::glam::{Affine3A, Vec3};
     ///
     /// let local = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))?;
     /// let world = local.transformed(&Affine3A::from_translation(Vec3::X * 10.0))?;
@@ -217,7 +217,7 @@ impl Aabb {
     ///
     /// ```
     /// use bevy_rtree::Aabb;
-    /// use glam::{Affine3A, Quat, Vec3};
+    /// use bevy_rtree::glam::{Affine3A, Quat, Vec3};
     ///
     /// let turned = Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), Vec3::X * 100.0);
     /// let world = Aabb::from_oriented(Vec3::ZERO, Vec3::ONE, &turned)?;

@@ -20,7 +20,7 @@ impl TryFrom<&BevyAabb> for Aabb {
     /// ```
     /// use bevy_camera::primitives::Aabb as BevyAabb;
     /// use bevy_rtree::Aabb;
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let bevy = BevyAabb::from_min_max(Vec3::ZERO, Vec3::ONE);
     /// let ours = Aabb::try_from(&bevy)?;
@@ -66,7 +66,7 @@ impl Frustum {
     /// use bevy_camera::{CameraProjection, PerspectiveProjection};
     /// use bevy_rtree::{Aabb, Frustum};
     /// use bevy_transform::prelude::GlobalTransform;
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let camera = GlobalTransform::from_xyz(0.0, 0.0, 10.0);
     /// let bevy = PerspectiveProjection::default().compute_frustum(&camera);
@@ -88,7 +88,7 @@ impl Ray {
     /// ```
     /// use bevy_math::Dir3;
     /// use bevy_rtree::Ray;
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let ray = Ray::from_dir(Vec3::ZERO, Dir3::NEG_Z, 50.0)?;
     /// assert_eq!(ray.point_at(10.0), Vec3::new(0.0, 0.0, -10.0));

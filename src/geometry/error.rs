@@ -10,7 +10,7 @@ use std::fmt;
 ///
 /// ```
 /// use bevy_rtree::{Aabb, SpatialError};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let inverted = Aabb::new(Vec3::ONE, Vec3::ZERO);
 /// assert_eq!(inverted, Err(SpatialError::InvalidBox));

@@ -133,7 +133,7 @@ fn sum_at_least(terms: [f64; 4]) -> f64 {
 ///
 /// ```
 /// use bevy_rtree::{Aabb, Frustum};
-/// use glam::{Quat, Vec3};
+/// use bevy_rtree::glam::{Quat, Vec3};
 ///
 /// // Looking down -z from the origin, like a default Bevy camera.
 /// let frustum = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 60f32.to_radians(), 16.0 / 9.0, 0.1, 100.0)?;
@@ -166,7 +166,7 @@ impl Frustum {
     ///
     /// ```
     /// use bevy_rtree::{Frustum, HalfSpace};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let huge = HalfSpace { normal: Vec3::new(0.0, 0.0, -4e30), offset: 8e30 };
     /// let i = HalfSpace::INACTIVE;
@@ -226,7 +226,7 @@ impl Frustum {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, Frustum};
-    /// use glam::{Quat, Vec3};
+    /// use bevy_rtree::glam::{Quat, Vec3};
     ///
     /// let turned = Quat::from_rotation_y(0.5);
     /// let view = Frustum::perspective(Vec3::ZERO, turned, 1.0, 1.5, 0.1, 100.0)?;

@@ -17,7 +17,7 @@ use super::{Aabb, SpatialError};
 ///
 /// ```
 /// use bevy_rtree::Ray;
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0)?;
 /// assert_eq!(ray.point_at(2.5), Vec3::new(2.5, 0.0, 0.0));
@@ -82,7 +82,7 @@ impl Ray {
 ///
 /// ```
 /// use bevy_rtree::{Aabb, Ray};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0)?.prepared()?;
 /// let wall = Aabb::new(Vec3::new(4.0, -1.0, -1.0), Vec3::new(5.0, 1.0, 1.0))?;

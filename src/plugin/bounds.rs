@@ -28,7 +28,7 @@ use crate::geometry::Aabb;
 /// ```
 /// use bevy_ecs::prelude::*;
 /// use bevy_rtree::{Aabb, plugin::SpatialBounds};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut world = World::new();
 /// let bounds = SpatialBounds(Aabb::new(Vec3::ZERO, Vec3::ONE)?);

@@ -26,7 +26,7 @@ use crate::query::CullMode;
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::Aabb;
 /// use bevy_rtree::plugin::{CullingCamera, SpatialBounds, SpatialIndexPlugin, VisibleEntityList};
-/// use glam::{Quat, Vec3};
+/// use bevy_rtree::glam::{Quat, Vec3};
 ///
 /// let mut app = App::new();
 /// app.add_plugins(SpatialIndexPlugin::default());
@@ -82,6 +82,12 @@ impl CullingCamera {
 impl<L: Component> CullingCamera<L> {
     /// A camera that sees only the entities of layer `L` (register the layer
     /// with [`add_spatial_layer`](super::SpatialAppExt::add_spatial_layer)).
+    ///
+    /// # Panics
+    ///
+    /// Inserting the camera on an entity panics if the app has not
+    /// registered layer `L`: a setup mistake, which would otherwise answer
+    /// nothing forever, not bad data.
     pub fn for_layer(frustum: Frustum) -> Self {
         CullingCamera {
             frustum,

@@ -32,7 +32,7 @@ use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
 /// use bevy_ecs::prelude::*;
 /// use bevy_rtree::Aabb;
 /// use bevy_rtree::plugin::{SpatialBounds, SpatialIndex, SpatialIndexPlugin};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut app = App::new();
 /// app.add_plugins(SpatialIndexPlugin::default());

@@ -27,7 +27,7 @@ use crate::query::JoinMode;
 /// use bevy_ecs::prelude::*;
 /// use bevy_rtree::{Aabb, JoinMode};
 /// use bevy_rtree::plugin::{SpatialAppExt, SpatialBounds, SpatialIndexPlugin, SpatialJoin};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// #[derive(Component)]
 /// struct Enemy;

@@ -15,7 +15,7 @@ use crate::query::oracle::BruteForce;
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::Aabb;
 /// use bevy_rtree::plugin::{SpatialBounds, SpatialIndex, SpatialIndexPlugin, layer_oracle};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut app = App::new();
 /// app.add_plugins(SpatialIndexPlugin::default());

@@ -31,7 +31,7 @@ use crate::query::{Neighbor, QueryWorkspace, RayHit};
 /// use bevy_rtree::plugin::{
 ///     SpatialBounds, SpatialIndexPlugin, SpatialIndexSystems, SpatialQuery, SpatialQueryFilter,
 /// };
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// #[derive(Resource, Default)]
 /// struct Seen(Option<Entity>);

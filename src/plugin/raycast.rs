@@ -40,7 +40,7 @@ use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::{Aabb, Ray, RayMode};
 /// use bevy_rtree::plugin::{RayCaster, RayCasterHits, SpatialBounds, SpatialIndexPlugin};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut app = App::new();
 /// app.add_plugins(SpatialIndexPlugin::default());
@@ -108,6 +108,12 @@ impl RayCaster {
 impl<L: Component> RayCaster<L> {
     /// A caster that only hits entities of layer `L` (register the layer
     /// with [`add_spatial_layer`](super::SpatialAppExt::add_spatial_layer)).
+    ///
+    /// # Panics
+    ///
+    /// Inserting the caster on an entity panics if the app has not
+    /// registered layer `L`: a setup mistake, which would otherwise answer
+    /// nothing forever, not bad data.
     pub fn for_layer(ray: Ray, mode: RayMode) -> Self {
         RayCaster {
             ray,

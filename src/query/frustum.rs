@@ -31,7 +31,9 @@ pub enum CullMode {
     /// edges, in `f64`; the frustum's own planes are the conservative
     /// test). Where rounding leaves a projection uncertain its interval is
     /// widened, so rounding can keep a box that lies just outside but never
-    /// drop one that is inside. A frustum whose planes have no common
+    /// drop one that is inside, with one exception: a frustum whose volume
+    /// is thinner than about 1e-11 of its distance from the eye may count
+    /// as empty and see nothing (contract, S7). A frustum whose planes have no common
     /// corner (two side planes alone, a wedge) is projected from its slice
     /// through the eye. Costs a few dozen dot products per boundary entry.
     Exact,
@@ -50,7 +52,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, CullMode, Frustum, QueryWorkspace, RTree};
-    /// use glam::{Quat, Vec3};
+    /// use bevy_rtree::glam::{Quat, Vec3};
     /// use std::ops::ControlFlow;
     ///
     /// let mut tree = RTree::new();
@@ -115,7 +117,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, CullMode, Frustum, QueryWorkspace, RTree};
-    /// use glam::{Quat, Vec3};
+    /// use bevy_rtree::glam::{Quat, Vec3};
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(7u32, Aabb::new(Vec3::new(-1.0, -1.0, -6.0), Vec3::new(1.0, 1.0, -4.0))?)?;

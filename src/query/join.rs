@@ -411,7 +411,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, JoinMode, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;

@@ -200,7 +200,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     /// use std::ops::ControlFlow;
     ///
     /// let mut tree = RTree::new();
@@ -315,7 +315,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// for (key, x) in [(5u32, 2.0), (4, 2.0), (9, 7.0), (1, 30.0)] {
@@ -402,7 +402,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree, SpatialError};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;

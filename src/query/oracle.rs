@@ -16,7 +16,7 @@ use crate::query::{CullMode, JoinMode, Neighbor, RayHit};
 /// ```
 /// use bevy_rtree::oracle::BruteForce;
 /// use bevy_rtree::Aabb;
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut all = BruteForce::default();
 /// all.insert(3u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?);
@@ -139,7 +139,7 @@ impl<K: Copy + Ord> BruteForce<K> {
     /// ```
     /// use bevy_rtree::oracle::BruteForce;
     /// use bevy_rtree::Aabb;
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut all = BruteForce::default();
     /// all.insert(1u32, Aabb::new(Vec3::new(2.0, 0.0, 0.0), Vec3::new(3.0, 1.0, 1.0))?);
@@ -163,7 +163,7 @@ impl<K: Copy + Ord> BruteForce<K> {
     /// ```
     /// use bevy_rtree::oracle::BruteForce;
     /// use bevy_rtree::{Aabb, Neighbor};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut all = BruteForce::default();
     /// all.insert(4u32, Aabb::new(Vec3::new(3.0, 4.0, 0.0), Vec3::new(5.0, 5.0, 1.0))?);
@@ -201,7 +201,7 @@ impl<K: Copy + Ord> BruteForce<K> {
     /// ```
     /// use bevy_rtree::oracle::BruteForce;
     /// use bevy_rtree::Aabb;
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut all = BruteForce::default();
     /// for key in [8u32, 2, 5] {

@@ -16,7 +16,7 @@ use crate::tree::QueryStats;
 ///
 /// ```
 /// use bevy_rtree::{Aabb, ParallelWorkspace, RTree, Ray, RayMode, RayResults};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut tree = RTree::new();
 /// for i in 0..100u32 {

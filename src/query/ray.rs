@@ -414,7 +414,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::new(5.0, -1.0, -1.0), Vec3::new(6.0, 1.0, 1.0))?)?;
@@ -437,7 +437,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree, Ray};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::new(-1.0, -1.0, -1.0), Vec3::ONE)?)?; // around the origin

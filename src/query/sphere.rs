@@ -37,7 +37,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     /// use std::ops::ControlFlow;
     ///
     /// let mut tree = RTree::new();
@@ -98,7 +98,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::ONE, Vec3::splat(2.0))?)?;
@@ -126,7 +126,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree, SpatialError};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(2u32, Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0))?)?;
@@ -147,7 +147,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::splat(1.0), Vec3::splat(2.0))?)?;
@@ -178,7 +178,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(7u32, Aabb::new(Vec3::new(2.0, 0.0, 0.0), Vec3::new(3.0, 1.0, 1.0))?)?;
@@ -213,7 +213,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert(1u32, Aabb::new(Vec3::new(3.0, 4.0, 0.0), Vec3::new(3.0, 4.0, 0.0))?)?;

@@ -10,7 +10,7 @@ use crate::tree::QueryStats;
 ///
 /// ```
 /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut tree = RTree::new();
 /// tree.insert(1u32, Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;

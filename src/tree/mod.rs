@@ -64,7 +64,7 @@ const MAX_WIDTH: usize = 16;
 ///
 /// ```
 /// use bevy_rtree::{Aabb, RTree};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut tree = RTree::new();
 /// let crate_box = tree.insert("crate", Aabb::new(Vec3::ZERO, Vec3::ONE)?)?;
@@ -178,7 +178,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// for i in 0..1_000u32 {
@@ -231,7 +231,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// assert_eq!(tree.bounds(), None);
@@ -261,7 +261,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// tree.insert_bulk((0..1000u32).map(|i| {

@@ -158,7 +158,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     /// use std::time::Duration;
     ///
     /// let mut tree = RTree::new();
@@ -250,7 +250,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     /// use std::time::Duration;
     ///
     /// let mut tree = RTree::new();
@@ -288,7 +288,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// for i in 0..100u32 {

@@ -26,7 +26,7 @@ pub(super) fn next_ticket() -> u64 {
 ///
 /// ```
 /// use bevy_rtree::{Aabb, RTree};
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 /// use std::time::Duration;
 ///
 /// let mut tree = RTree::new();

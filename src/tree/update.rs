@@ -42,7 +42,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, MoveKind, RTree};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;
@@ -75,7 +75,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// ```
     /// use bevy_rtree::{Aabb, RTree, SpatialError};
-    /// use glam::Vec3;
+    /// use bevy_rtree::glam::Vec3;
     ///
     /// let mut tree = RTree::new();
     /// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE)?;

@@ -53,7 +53,7 @@ use super::{SpatialIndexConfig, SpatialIndexSystems};
 /// use bevy_camera::visibility::{InheritedVisibility, ViewVisibility};
 /// use bevy_rtree::plugin::{BevyVisibilityPlugin, Renderable, SpatialIndex, SpatialIndexPlugin};
 /// use bevy_transform::prelude::*;
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut app = App::new();
 /// app.add_plugins((TransformPlugin, SpatialIndexPlugin::default(), BevyVisibilityPlugin));

@@ -63,7 +63,7 @@ pub(super) struct Resync {
 ///     BevyVisibilityPlugin, Renderable, RenderableHandle, SpatialIndex, SpatialIndexPlugin,
 /// };
 /// use bevy_transform::prelude::*;
-/// use glam::Vec3;
+/// use bevy_rtree::glam::Vec3;
 ///
 /// let mut app = App::new();
 /// app.add_plugins((TransformPlugin, SpatialIndexPlugin::default(), BevyVisibilityPlugin));
