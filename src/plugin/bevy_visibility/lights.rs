@@ -75,6 +75,22 @@ pub(super) struct LightScratch {
     faces: [Vec<Entity>; 6],
 }
 
+impl LightScratch {
+    /// The casters Bevy's tests decide without the tree: those outside it
+    /// by construction, and entries whose box the index refused.
+    fn gather_one_by_one(
+        &mut self,
+        outside_the_tree: &Query<Entity, OutsideTheTree>,
+        index: &SpatialIndex<Renderable>,
+    ) {
+        self.one_by_one.clear();
+        self.one_by_one.extend(outside_the_tree.iter());
+        self.one_by_one.extend(index.unindexed());
+        self.one_by_one.sort_unstable();
+        self.one_by_one.dedup();
+    }
+}
+
 /// How a point or spot light's shadow views see a caster that passes
 /// Bevy's non-geometric checks.
 enum Shape<'a> {
@@ -84,12 +100,12 @@ enum Shape<'a> {
     Spot(&'a Sphere, &'a BevyFrustum),
 }
 
-/// Replaces bevy_light's `check_point_light_mesh_visibility` and
-/// `check_dir_light_mesh_visibility`, in
-/// `SimulationLightSystems::CheckLightVisibility`: the same lists, in the
-/// same order (sorted), and the same `ViewVisibility` for every caster.
+/// Replaces bevy_light's `check_point_light_mesh_visibility`, in
+/// `SimulationLightSystems::CheckLightVisibility`: the same lists of every
+/// point and spot light, in the same order (sorted), and the same
+/// `ViewVisibility` for every caster.
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
-pub(super) fn check_light_visibility_from_index(
+pub(super) fn check_point_light_visibility_from_index(
     seen_by_cameras: Query<&VisibleEntities>,
     mut point_lights: Query<(
         &PointLight,
@@ -105,35 +121,18 @@ pub(super) fn check_light_visibility_from_index(
         &mut VisibleMeshEntities,
         Option<&RenderLayers>,
     )>,
-    mut directional_lights: Query<
-        (
-            &DirectionalLight,
-            &CascadesFrusta,
-            &mut CascadesVisibleEntities,
-            Option<&RenderLayers>,
-            &ViewVisibility,
-        ),
-        Without<SpotLight>,
-    >,
     mut casters: Query<Caster<'_>, CasterFilter>,
     outside_the_tree: Query<Entity, OutsideTheTree>,
     mut lod_cameras: Query<(Entity, &RenderTarget), With<Camera>>,
     mut lod_origins: Query<Entity, With<ShadowLodOrigin>>,
     mut point_and_spot: Query<Entity, Or<(With<PointLight>, With<SpotLight>)>>,
-    view_transforms: Query<&GlobalTransform, With<Camera>>,
     index: Res<SpatialIndex<Renderable>>,
     ranges: Option<Res<VisibleEntityRanges>>,
-    settings: Res<BevyVisibilitySettings>,
     mut scratch: Local<LightScratch>,
 ) {
     let ranges = ranges.as_deref();
     let scratch = &mut *scratch;
-    scratch.one_by_one.clear();
-    scratch.one_by_one.extend(outside_the_tree.iter());
-    // Entries whose box the index refused are tested one by one as well.
-    scratch.one_by_one.extend(index.unindexed());
-    scratch.one_by_one.sort_unstable();
-    scratch.one_by_one.dedup();
+    scratch.gather_one_by_one(&outside_the_tree, &index);
     let lod_origin = get_shadow_lod_origin(
         lod_cameras.transmute_lens_filtered(),
         lod_origins.transmute_lens_filtered(),
@@ -180,7 +179,35 @@ pub(super) fn check_light_visibility_from_index(
             }
         }
     }
+}
 
+/// Replaces bevy_light's `check_dir_light_mesh_visibility`, in
+/// `SimulationLightSystems::CheckLightVisibility`: the same lists of every
+/// cascade of every directional light, in the same order (sorted), and the
+/// same `ViewVisibility` for every caster.
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+pub(super) fn check_dir_light_visibility_from_index(
+    mut directional_lights: Query<
+        (
+            &DirectionalLight,
+            &CascadesFrusta,
+            &mut CascadesVisibleEntities,
+            Option<&RenderLayers>,
+            &ViewVisibility,
+        ),
+        Without<SpotLight>,
+    >,
+    mut casters: Query<Caster<'_>, CasterFilter>,
+    outside_the_tree: Query<Entity, OutsideTheTree>,
+    view_transforms: Query<&GlobalTransform, With<Camera>>,
+    index: Res<SpatialIndex<Renderable>>,
+    ranges: Option<Res<VisibleEntityRanges>>,
+    settings: Res<BevyVisibilitySettings>,
+    mut scratch: Local<LightScratch>,
+) {
+    let ranges = ranges.as_deref();
+    let scratch = &mut *scratch;
+    scratch.gather_one_by_one(&outside_the_tree, &index);
     for (light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
         // One list per cascade of every view that has cascades, as Bevy
         // keeps them.

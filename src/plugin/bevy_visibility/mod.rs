@@ -158,7 +158,13 @@ impl BevyVisibilitySettings {
 /// A system of the app that writes `GlobalTransform` or `Aabb` (or spawns
 /// or enables renderables) after transform propagation but before Bevy's
 /// culling must run before this set too: Bevy's culling would see its
-/// change in the same frame, and the index only from the next one.
+/// change in the same frame, and the index only from the next one. The
+/// same holds for the lights' shadow visibility (feature `bevy_light`),
+/// which runs after camera culling from the same index: a shadow caster
+/// written between camera culling and
+/// `SimulationLightSystems::CheckLightVisibility` is tested by the lights
+/// with the box the index read before camera culling, until the next
+/// frame.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -272,21 +278,24 @@ fn take_out_bevy_systems(world: &mut World) {
         // builds the schedule, after which its systems are named through
         // the executable (both work; reading first keeps it one way).
         let cameras = orders::ServesCameraVisibility.intern();
-        let culling = [check_visibility_cpu_culling.into_system_set().intern()];
-        let camera_orders = orders::orders_against(schedule, &culling, cameras);
+        let culling = check_visibility_cpu_culling.into_system_set().intern();
+        let camera_orders = orders::orders_against(schedule, culling, cameras);
         #[cfg(feature = "bevy_light")]
         {
             use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
-            let lights = orders::ServesLightVisibility.intern();
-            let shadows = [
-                check_point_light_mesh_visibility.into_system_set().intern(),
-                check_dir_light_mesh_visibility.into_system_set().intern(),
-            ];
-            let light_orders = orders::orders_against(schedule, &shadows, lights);
+            // One replacement each, so that every order of the app against
+            // one of Bevy's two carries over to its replacement alone.
+            let point = orders::ServesPointLightVisibility.intern();
+            let point_shadows = check_point_light_mesh_visibility.into_system_set().intern();
+            let point_orders = orders::orders_against(schedule, point_shadows, point);
+            let directional = orders::ServesDirectionalLightVisibility.intern();
+            let dir_shadows = check_dir_light_mesh_visibility.into_system_set().intern();
+            let dir_orders = orders::orders_against(schedule, dir_shadows, directional);
             let _ =
                 schedule.remove_systems_in_set(check_point_light_mesh_visibility, world, policy);
             let _ = schedule.remove_systems_in_set(check_dir_light_mesh_visibility, world, policy);
-            orders::order(schedule, lights, light_orders);
+            orders::order(schedule, point, point_orders);
+            orders::order(schedule, directional, dir_orders);
         }
         let removed = schedule.remove_systems_in_set(check_visibility_cpu_culling, world, policy);
         orders::order(schedule, cameras, camera_orders);
@@ -303,17 +312,25 @@ fn take_out_bevy_systems(world: &mut World) {
 }
 
 /// Serves bevy_light's shadow visibility from the index too (feature
-/// `bevy_light`): a system in `SimulationLightSystems::CheckLightVisibility`,
-/// ordered as Bevy orders its own, in place of
-/// `check_point_light_mesh_visibility` and `check_dir_light_mesh_visibility`.
+/// `bevy_light`): two systems in
+/// `SimulationLightSystems::CheckLightVisibility`, ordered as Bevy orders
+/// its own, in place of `check_point_light_mesh_visibility` and
+/// `check_dir_light_mesh_visibility`.
 #[cfg(feature = "bevy_light")]
 fn add_light_visibility(app: &mut App) {
     use bevy_light::SimulationLightSystems;
+    use lights::{check_dir_light_visibility_from_index, check_point_light_visibility_from_index};
     app.add_systems(
         PostUpdate,
-        lights::check_light_visibility_from_index
+        (
+            check_point_light_visibility_from_index.in_set(orders::ServesPointLightVisibility),
+            // Both mark casters visible, which commutes: they need no order,
+            // as Bevy's two have none.
+            check_dir_light_visibility_from_index
+                .in_set(orders::ServesDirectionalLightVisibility)
+                .ambiguous_with(check_point_light_visibility_from_index),
+        )
             .in_set(SimulationLightSystems::CheckLightVisibility)
-            .in_set(orders::ServesLightVisibility)
             .after(VisibilitySystems::CalculateBounds)
             .after(TransformSystems::Propagate)
             .after(SimulationLightSystems::UpdateLightFrusta)

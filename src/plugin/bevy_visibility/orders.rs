@@ -8,14 +8,14 @@
 //! system goes, each order of a system against its set is copied onto the
 //! set of the system that takes its place.
 //!
+//! Each of Bevy's systems has a replacement of its own, so an order
+//! against one carries over to it alone and closes no cycle that Bevy's
+//! system did not.
+//!
 //! Not carried over (each logged at debug level): an order of a whole set
-//! of the app (the schedule hands out its sets only by reference), of a
-//! function added more than once (which cannot be ordered against by
-//! name), and, for the one system that replaces bevy_light's two, the
-//! orders of systems that run *before* them: with orders on both sides of
-//! two unordered systems, one replacement could close a cycle (`a` after
-//! one and `b` before the other, `a` before `b`). Systems that read the
-//! lights' lists come after them, and those orders are carried.
+//! of the app (the schedule hands out its sets only by reference), and of
+//! a function added more than once (which cannot be ordered against by
+//! name).
 
 use bevy_ecs::schedule::graph::Direction;
 use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, NodeId, Schedule, SystemSet};
@@ -24,20 +24,26 @@ use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, NodeId, Schedul
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub(super) struct ServesCameraVisibility;
 
-/// The set of the index's system that serves bevy_light's shadow
-/// visibility.
+/// The set of the index's system that serves bevy_light's point and spot
+/// light shadow visibility.
 #[cfg(feature = "bevy_light")]
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub(super) struct ServesLightVisibility;
+pub(super) struct ServesPointLightVisibility;
 
-/// The systems `schedule` orders before and after the sets `replaced`
-/// (Bevy's systems, still in it), each named by its function's set:
+/// The set of the index's system that serves bevy_light's directional
+/// light shadow visibility.
+#[cfg(feature = "bevy_light")]
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub(super) struct ServesDirectionalLightVisibility;
+
+/// The systems `schedule` orders before and after the set `replaced` (a
+/// system of Bevy's, still in it), each named by its function's set:
 /// `(before, after)`. Left out: the systems of `ours` (the replacement
 /// itself), what the module's docs list, and a system found on both sides.
-/// Read before any of them is taken out (see `take_out_bevy_systems`).
+/// Read before Bevy's system is taken out (see `take_out_bevy_systems`).
 pub(super) fn orders_against(
     schedule: &Schedule,
-    replaced: &[InternedSystemSet],
+    replaced: InternedSystemSet,
     ours: InternedSystemSet,
 ) -> (Vec<InternedSystemSet>, Vec<InternedSystemSet>) {
     let graph = schedule.graph();
@@ -79,23 +85,18 @@ pub(super) fn orders_against(
         Some(function)
     };
     let dependency = graph.dependency().graph();
-    let (mut before, mut after) = (Vec::new(), Vec::new());
-    for set in replaced {
-        let Some(key) = graph.system_sets.get_key(*set) else {
-            continue;
-        };
-        let node = NodeId::Set(key);
-        before.extend(
-            dependency
-                .neighbors_directed(node, Direction::Incoming)
-                .filter_map(label),
-        );
-        after.extend(
-            dependency
-                .neighbors_directed(node, Direction::Outgoing)
-                .filter_map(label),
-        );
-    }
+    let Some(key) = graph.system_sets.get_key(replaced) else {
+        return (Vec::new(), Vec::new());
+    };
+    let node = NodeId::Set(key);
+    let mut before: Vec<InternedSystemSet> = dependency
+        .neighbors_directed(node, Direction::Incoming)
+        .filter_map(label)
+        .collect();
+    let mut after: Vec<InternedSystemSet> = dependency
+        .neighbors_directed(node, Direction::Outgoing)
+        .filter_map(label)
+        .collect();
     let both: Vec<InternedSystemSet> = before
         .iter()
         .filter(|set| after.contains(set))
@@ -106,10 +107,6 @@ pub(super) fn orders_against(
     }
     before.retain(|set| !both.contains(set));
     after.retain(|set| !both.contains(set));
-    if replaced.len() > 1 && !before.is_empty() {
-        log::debug!("orders before the systems the index replaces with one are not carried over");
-        before.clear();
-    }
     (before, after)
 }
 
