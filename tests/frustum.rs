@@ -457,6 +457,51 @@ fn a_zero_thickness_frustum_has_only_conservative_false_positives() {
     assert!(oracle.visible(&flat, CullMode::Exact).is_empty());
 }
 
+/// Two planes through the eye that face exactly away from each other
+/// (one is -3 times the other) bound an empty volume: exact mode sees
+/// nothing, even at a point where both planes' values round above zero in
+/// `f32` (so the conservative test, and the check that a box is inside
+/// every plane, both pass it).
+#[test]
+fn exact_mode_sees_nothing_between_planes_that_face_apart() {
+    let i = HalfSpace::INACTIVE;
+    let p = HalfSpace {
+        normal: Vec3::new(1.0, 0.5, 0.25),
+        offset: 0.0,
+    };
+    let q = HalfSpace {
+        normal: Vec3::new(-3.0, -1.5, -0.75),
+        offset: 0.0,
+    };
+    let apart = Frustum::new(Vec3::ZERO, [p, q, i, i, i, i]).unwrap();
+    let at = glam::DVec3::new(3.449885129928589, -6.252113342285156, -1.2953135967254639).as_vec3();
+    let rounds_inside = common::aabb(at.to_array(), at.to_array());
+    // The volume is empty in exact arithmetic: the two normals are
+    // opposite (a negative multiple), and both offsets are 0.
+    let (n, m) = (apart.planes()[0].normal, apart.planes()[1].normal);
+    assert_eq!(n.as_dvec3().cross(m.as_dvec3()), glam::DVec3::ZERO);
+    assert!(n.as_dvec3().dot(m.as_dvec3()) < 0.0);
+    let (tree, oracle) = with_distractors(&[rounds_inside]);
+    let conservative = tree.visible(&apart, CullMode::Conservative);
+    assert!(
+        conservative.contains(&0),
+        "the planes' rounding lets it through"
+    );
+    assert!(tree.visible(&apart, CullMode::Exact).is_empty());
+    assert!(oracle.visible(&apart, CullMode::Exact).is_empty());
+    let mut visited = 0;
+    tree.visit_visible(
+        &[apart],
+        CullMode::Exact,
+        &mut QueryWorkspace::default(),
+        |_, _, _| {
+            visited += 1;
+            std::ops::ControlFlow::Continue(())
+        },
+    );
+    assert_eq!(visited, 0);
+}
+
 #[test]
 fn an_inactive_far_plane_sees_boxes_at_1e14_metres() {
     let frustum = Frustum::perspective(

@@ -60,7 +60,8 @@ impl Frustum {
     /// Bevy's `Frustum` (world-space half-spaces, as Bevy's camera keeps
     /// it) re-based on `eye`, usually the camera's position. All six planes
     /// are kept, the far one too (Bevy's own camera culling ignores it; see
-    /// the `BevyVisibilityPlugin` for Bevy's exact behaviour).
+    /// the `BevyVisibilityPlugin` for Bevy's exact behaviour); a plane that
+    /// never culls in Bevy's tests (an infinite far plane) is inactive.
     ///
     /// ```
     /// use bevy_camera::{CameraProjection, PerspectiveProjection};
@@ -76,7 +77,17 @@ impl Frustum {
     /// # Ok::<(), bevy_rtree::SpatialError>(())
     /// ```
     pub fn from_bevy(frustum: &BevyFrustum, eye: Vec3) -> Result<Frustum, SpatialError> {
-        let planes = frustum.half_spaces.map(|h| (Vec3::from(h.normal()), h.d()));
+        let planes = frustum.half_spaces.map(|h| {
+            let (normal, d) = (Vec3::from(h.normal()), h.d());
+            // A plane whose value is NaN or +inf at every point never culls
+            // in Bevy's tests: its infinite far plane (`far: f32::INFINITY`,
+            // stored as `(n, +inf)`, or with a NaN where `n` has a zero).
+            if d == f32::INFINITY || d.is_nan() || normal.is_nan() {
+                (Vec3::ZERO, f32::INFINITY)
+            } else {
+                (normal, d)
+            }
+        });
         Frustum::from_world_planes(eye, planes)
     }
 }

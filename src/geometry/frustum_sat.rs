@@ -151,6 +151,12 @@ impl FrustumSat {
         sat
     }
 
+    /// Whether the frustum's open volume is empty (or flat), so that exact
+    /// mode sees nothing in it, whatever its planes let through.
+    pub(crate) fn sees_nothing(&self) -> bool {
+        self.empty
+    }
+
     /// Whether one of the prepared axes separates the box from the frustum.
     pub(crate) fn separates(&self, aabb: &Aabb) -> bool {
         if self.empty {

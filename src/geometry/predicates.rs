@@ -146,7 +146,10 @@ pub(crate) fn frustum_exact(frustum: &Frustum, sat: &super::FrustumSat, aabb: &A
 /// The part of [`frustum_exact`] that follows the conservative test.
 #[inline]
 pub(crate) fn frustum_exact_rest(frustum: &Frustum, sat: &super::FrustumSat, aabb: &Aabb) -> bool {
-    frustum_contains(frustum, aabb) || !sat.separates(aabb)
+    // An empty volume sees nothing, even a box its planes' `f32` values
+    // each put inside (two planes that face away from each other round so
+    // at some points).
+    !sat.sees_nothing() && (frustum_contains(frustum, aabb) || !sat.separates(aabb))
 }
 
 /// Squared Euclidean distance between two closed boxes, in `f64` (S8).

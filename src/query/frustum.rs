@@ -178,6 +178,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub(crate) fn cull_start(&self, views: &[PreparedView]) -> Option<CullItem> {
         let mut start_mask = 0u64;
         for (v, view) in views.iter().enumerate() {
+            // An exact view of an empty volume sees nothing: not even the
+            // subtrees its planes would report whole.
+            if view.sat.as_ref().is_some_and(FrustumSat::sees_nothing) {
+                continue;
+            }
             start_mask |= (ALIVE | view.active_planes as u64) << (8 * v);
         }
         (start_mask != 0).then_some((self.root(), start_mask))
