@@ -525,6 +525,43 @@ fn a_teleport_wears_the_tiling_as_a_respawn_does() {
     assert!(!stepped.is_worn());
 }
 
+/// A respawn (a removal and an insert that takes the freed slot, as a
+/// frame's despawn and spawn do) wears the tiling twice, whether it is
+/// made to the tree or replayed onto a rebuild that was away meanwhile:
+/// respawning a seventh of the entries far away makes both worn.
+#[test]
+fn a_respawn_replayed_by_the_catch_up_wears_the_tiling_twice() {
+    let far = |i: usize| cube(Vec3::new(i as f32 * 3.0, 0.0, 9_000.0), 0.5);
+    let scene = TownScene::new(4_000, 41);
+    let respawn = |tree: &mut RTree<u32>, ids: &[ProxyId]| {
+        for (i, &id) in ids.iter().enumerate().step_by(7) {
+            tree.remove(id).unwrap();
+            let again = tree.insert(i as u32, far(i)).unwrap();
+            // The freed slot is taken again, under a new generation.
+            assert_ne!(again, id);
+        }
+    };
+    let (mut direct, ids) = scene.bulk_loaded_tree();
+    assert!(!direct.is_worn());
+    respawn(&mut direct, &ids);
+    assert!(direct.is_worn());
+
+    let (mut replayed, ids) = scene.bulk_loaded_tree();
+    replayed.start_rebuild();
+    let mut work = replayed.take_rebuild_work().unwrap();
+    respawn(&mut replayed, &ids);
+    work.run();
+    assert!(replayed.finish_rebuild_work(work));
+    let mut steps = 0;
+    while !replayed.step_rebuild_units(200) {
+        steps += 1;
+        assert!(steps < 20, "not swapped in");
+    }
+    assert!(!replayed.rebuild_pending());
+    replayed.validate().unwrap();
+    assert!(replayed.is_worn());
+}
+
 /// The maintenance counters count each change the caller made once: the
 /// rebuild's catch-up, which applies the changes made while the work was
 /// away to the new structure through the same moves, inserts and removals,

@@ -280,13 +280,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
         let exact = boxes.map(|(exact, _)| exact);
         if self.proxies[s].is_live() {
-            // This structure holds what the slot was: removed here (a
-            // removal wears the tiling as an insert does).
+            // This structure holds what the slot was (removed since, or a
+            // respawn in the freed slot): removed here, wearing the tiling
+            // as an insert does, so a respawn counts twice as it does
+            // made to the tree.
             self.detach(slot);
             self.proxies[s].leaf = NIL;
-            if exact.is_none() {
-                self.wear += 1;
-            }
+            self.wear += 1;
         }
         if let Some(exact) = exact {
             let fat = self.settings.fatten(&exact, glam::Vec3::ZERO);
