@@ -23,13 +23,16 @@ pub use crate::geometry::{Aabb, Frustum, HalfSpace, MAX_COORD, Ray, SpatialError
 #[cfg(feature = "bevy")]
 pub use crate::plugin::LocalBounds;
 #[cfg(feature = "bevy_camera")]
-pub use crate::plugin::{BevyVisibilityPlugin, FollowBevyFrustum, Renderable};
+pub use crate::plugin::{
+    BevyVisibilityPlugin, BevyVisibilitySettings, FollowBevyFrustum, Renderable,
+    RenderableSyncSystems,
+};
 #[cfg(feature = "plugin")]
 pub use crate::plugin::{
     CullingCamera, NoSpatialIndex, PairEnded, PairStarted, RayCaster, RayCasterHits, RebuildMode,
     SpatialAppExt, SpatialBounds, SpatialDiagnostics, SpatialIndex, SpatialIndexPlugin,
     SpatialIndexSystems, SpatialJoin, SpatialQuery, SpatialQueryFilter, VisibleEntityList,
 };
-pub use crate::query::{CullMode, JoinMode, QueryWorkspace, RayHit, RayMode};
+pub use crate::query::{CullMode, JoinMode, Neighbor, QueryWorkspace, RayHit, RayMode};
 pub use crate::tree::{ProxyId, RTree, TreeSettings};
 pub use glam::{Affine3A, Quat, Vec3};

@@ -221,3 +221,119 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     let kept = app.world().get::<CullingCamera>(camera).unwrap();
     assert_eq!(kept.frustum, expected);
 }
+
+/// An entity that stops following (`FollowBevyFrustum` or its `Frustum`
+/// removed) loses the culling camera the plugin kept for it, and its list,
+/// so no frozen view goes on being culled; a new `Frustum` brings it back.
+/// A Bevy `Camera` with `is_active: false` is skipped and keeps its list,
+/// as Bevy skips it.
+#[test]
+fn a_camera_that_stops_following_or_is_inactive_is_not_culled() {
+    use bevy_camera::Camera;
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    let ahead = Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, -10.0), Vec3::ONE).unwrap();
+    let seen = app.world_mut().spawn(SpatialBounds(ahead)).id();
+    let transform = Transform::default();
+    let follow = |world: &mut bevy_ecs::world::World| {
+        world
+            .spawn((
+                bevy_frustum(&transform),
+                GlobalTransform::from(transform),
+                FollowBevyFrustum::default(),
+            ))
+            .id()
+    };
+    let culled = |app: &App| app.world().resource::<SpatialDiagnostics>().culling.queries;
+
+    let stops = follow(app.world_mut());
+    let loses_frustum = follow(app.world_mut());
+    app.update();
+    assert_eq!(culled(&app), 2);
+    for camera in [stops, loses_frustum] {
+        let list = app.world().get::<VisibleEntityList>(camera).unwrap();
+        assert_eq!(list.entities(), [seen]);
+    }
+    app.world_mut()
+        .entity_mut(stops)
+        .remove::<FollowBevyFrustum>();
+    app.world_mut()
+        .entity_mut(loses_frustum)
+        .remove::<BevyFrustum>();
+    app.update();
+    for camera in [stops, loses_frustum] {
+        let entity = app.world().entity(camera);
+        assert!(!entity.contains::<CullingCamera>() && !entity.contains::<VisibleEntityList>());
+    }
+    assert_eq!(culled(&app), 0);
+    app.world_mut()
+        .entity_mut(loses_frustum)
+        .insert(bevy_frustum(&transform));
+    app.update();
+    assert_eq!(culled(&app), 1);
+    let list = app.world().get::<VisibleEntityList>(loses_frustum).unwrap();
+    assert_eq!(list.entities(), [seen]);
+
+    // Inactive: not culled, the last list kept while the scene changes.
+    app.world_mut().entity_mut(loses_frustum).insert(Camera {
+        is_active: false,
+        ..Camera::default()
+    });
+    app.world_mut().despawn(seen);
+    app.update();
+    assert_eq!(culled(&app), 0);
+    let list = app.world().get::<VisibleEntityList>(loses_frustum).unwrap();
+    assert_eq!(list.entities(), [seen]);
+    app.world_mut()
+        .get_mut::<Camera>(loses_frustum)
+        .unwrap()
+        .is_active = true;
+    app.update();
+    assert_eq!(culled(&app), 1);
+    let list = app.world().get::<VisibleEntityList>(loses_frustum).unwrap();
+    assert!(list.entities().is_empty());
+}
+
+/// A Bevy camera with an infinite far plane (`far: f32::INFINITY`, which
+/// Bevy stores as a plane of infinite or NaN offset and never culls with)
+/// is followed, looking along an axis or turned, and sees a box a
+/// thousand kilometres ahead, as the oracle does.
+#[test]
+fn a_bevy_camera_with_an_infinite_far_plane_is_followed() {
+    let projection = PerspectiveProjection {
+        far: f32::INFINITY,
+        ..PerspectiveProjection::default()
+    };
+    for turn in [0.0, 0.7] {
+        let mut app = App::new();
+        app.add_plugins(SpatialIndexPlugin::default());
+        let transform =
+            Transform::from_rotation(Quat::from_euler(glam::EulerRot::YXZ, turn, turn * 0.5, 0.0));
+        let ahead = transform.rotation * Vec3::NEG_Z * 1e6;
+        let far_box = Aabb::from_center_half_extents(ahead, Vec3::splat(10.0)).unwrap();
+        let behind = Aabb::from_center_half_extents(-ahead, Vec3::splat(10.0)).unwrap();
+        let seen = app.world_mut().spawn(SpatialBounds(far_box)).id();
+        app.world_mut().spawn(SpatialBounds(behind));
+        let frustum = projection.compute_frustum(&GlobalTransform::from(transform));
+        let far = frustum.half_spaces[5];
+        assert!(far.d() == f32::INFINITY || far.d().is_nan(), "{far:?}");
+        let camera = app
+            .world_mut()
+            .spawn((
+                frustum,
+                GlobalTransform::from(transform),
+                FollowBevyFrustum::default(),
+            ))
+            .id();
+        app.update();
+        let culling = *app.world().get::<CullingCamera>(camera).expect("followed");
+        assert!(culling.frustum.planes()[5].is_inactive());
+        let list = app.world().get::<VisibleEntityList>(camera).unwrap();
+        assert_eq!(list.entities(), [seen], "turn {turn}");
+        let oracle = layer_oracle::<SpatialBounds>(app.world_mut());
+        assert_eq!(
+            oracle.visible(&culling.frustum, CullMode::Conservative),
+            [seen]
+        );
+    }
+}

@@ -1011,3 +1011,105 @@ fn a_cleared_entity_gets_no_handle_back() {
     assert!(app.world().get::<SpatialHandle>(kept).is_some());
     assert_eq!(indexed(&app), vec![kept]);
 }
+
+/// The diagnostics count one run of a family's system per layer, whatever
+/// modes its cameras and casters use, and all of its work: a caster whose
+/// own box turned the batch's first hit down casts again through its
+/// filter, and that walk's nodes are counted too.
+#[test]
+fn diagnostics_count_one_run_and_every_walk() {
+    let mut app = app();
+    let mut targets = Vec::new();
+    for i in 0..400 {
+        targets.push(app.world_mut().spawn(unit_at(2.0 * i as f32)).id());
+    }
+    let view = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 1.0, 0.1, 100.0).unwrap();
+    let world = app.world_mut();
+    world.spawn(CullingCamera::new(view));
+    world.spawn(CullingCamera::new(view).with_mode(CullMode::Exact));
+    // A caster inside the first target's box, looking down the row.
+    let ray = Ray::new(Vec3::new(0.5, 0.5, 0.5), Vec3::X, 1_000.0).unwrap();
+    world
+        .entity_mut(targets[0])
+        .insert(RayCaster::new(ray, RayMode::First));
+    // A second mode, from an entity without a box: it ignores itself too,
+    // so its any-hit is walked again through its filter as well.
+    let any = world.spawn(RayCaster::new(ray, RayMode::Any)).id();
+    app.update();
+    let d = *app.world().resource::<SpatialDiagnostics>();
+    assert_eq!((d.culling.runs, d.culling.queries), (1, 2));
+    assert_eq!((d.rays.runs, d.rays.queries), (1, 2));
+    let hits = app.world().get::<RayCasterHits>(targets[0]).unwrap();
+    assert_eq!(hits.first().map(|h| h.key), Some(targets[1]));
+    // The walks the recasts make, alone.
+    let index = app.world().resource::<SpatialIndex>();
+    let mut ws = bevy_rtree::QueryWorkspace::default();
+    let first = index
+        .tree()
+        .cast_ray_where(&ray, &mut ws, |e| e != targets[0]);
+    assert_eq!(first.unwrap().map(|h| h.key), Some(targets[1]));
+    let hit = index.tree().ray_hits_any_where(&ray, &mut ws, |e| e != any);
+    assert_eq!(hit, Ok(true));
+    let recast = ws.take_stats().nodes_visited;
+    // And the batches of each mode, as the plugin casts them.
+    let mut batches = 0;
+    for mode in [RayMode::First, RayMode::Any] {
+        let mut results = bevy_rtree::RayResults::default();
+        index.tree().cast_rays(&[ray], mode, &mut ws, &mut results);
+        batches += ws.take_stats().nodes_visited;
+    }
+    assert_eq!(d.rays.nodes_visited, batches + recast);
+}
+
+/// `SpatialQuery` clears every output before it answers, and a refused
+/// query leaves it empty, not holding the last answer.
+#[test]
+fn spatial_query_outputs_hold_this_answer_only() {
+    #[derive(Resource, Default)]
+    struct Outputs {
+        overlap: Vec<Entity>,
+        sphere: Vec<Entity>,
+        refused_nearest: Vec<usize>,
+        refused_sphere: usize,
+    }
+    let mut app = app();
+    for i in 0..5 {
+        app.world_mut().spawn(unit_at(2.0 * i as f32));
+    }
+    app.init_resource::<Outputs>().add_systems(
+        PostUpdate,
+        (|mut spatial: SpatialQuery, mut outputs: ResMut<Outputs>| {
+            let all = SpatialQueryFilter::default();
+            let around = Aabb::new(Vec3::splat(-1.0), Vec3::splat(2.5)).unwrap();
+            let mut found = vec![Entity::PLACEHOLDER];
+            spatial.overlapping(&around, &all, &mut found);
+            outputs.overlap = found.clone();
+            spatial
+                .overlapping_sphere(Vec3::ZERO, 0.5, &all, &mut found)
+                .unwrap();
+            outputs.sphere = found.clone();
+            let refused = spatial.overlapping_sphere(Vec3::ZERO, f32::NAN, &all, &mut found);
+            assert!(refused.is_err());
+            outputs.refused_sphere = found.len();
+            let mut near = Vec::new();
+            spatial
+                .nearest(Vec3::ZERO, 3, None, &all, &mut near)
+                .unwrap();
+            outputs.refused_nearest.push(near.len());
+            assert!(
+                spatial
+                    .nearest(Vec3::ZERO, 0, None, &all, &mut near)
+                    .is_err()
+            );
+            outputs.refused_nearest.push(near.len());
+        })
+        .after(SpatialIndexSystems::Sync),
+    );
+    app.update();
+    let outputs = app.world().resource::<Outputs>();
+    assert_eq!(outputs.overlap.len(), 2, "{:?}", outputs.overlap);
+    assert!(!outputs.overlap.contains(&Entity::PLACEHOLDER));
+    assert_eq!(outputs.sphere.len(), 1);
+    assert_eq!(outputs.refused_sphere, 0);
+    assert_eq!(outputs.refused_nearest, [3, 0]);
+}

@@ -23,7 +23,10 @@ use crate::query::CullMode;
 /// camera sees. The eye is the camera's world position.
 ///
 /// A frustum that cannot be converted (not finite) keeps the previous one
-/// and logs a warning once per camera.
+/// and logs a warning once per camera. Removing `FollowBevyFrustum` (or the
+/// camera's `Frustum`) removes the `CullingCamera` and its list; a Bevy
+/// camera with `is_active: false` is not culled and keeps its last list,
+/// as Bevy skips it.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -126,7 +129,32 @@ pub(crate) fn add_follow_system<L: Component>(
         follow_bevy_frustums::<L>
             .in_set(SpatialIndexSystems::Bounds)
             .run_if(any_with_component::<FollowBevyFrustum<L>>),
-    );
+    )
+    .add_observer(stop_following::<L>)
+    .add_observer(lose_frustum::<L>);
+}
+
+/// Observer: an entity that stops following its Bevy camera loses the
+/// culling camera the plugin kept for it (and with it its list), so that
+/// no frozen view keeps being culled.
+fn stop_following<L: Component>(event: On<Remove<FollowBevyFrustum<L>>>, mut commands: Commands) {
+    if let Ok(mut entity) = commands.get_entity(event.entity) {
+        entity.try_remove::<CullingCamera<L>>();
+    }
+}
+
+/// Observer: a follower whose Bevy `Frustum` goes has nothing to follow;
+/// its culling camera goes too, and comes back with a new `Frustum`.
+fn lose_frustum<L: Component>(
+    event: On<Remove<BevyFrustum>>,
+    followers: Query<(), With<FollowBevyFrustum<L>>>,
+    mut commands: Commands,
+) {
+    if followers.contains(event.entity)
+        && let Ok(mut entity) = commands.get_entity(event.entity)
+    {
+        entity.try_remove::<CullingCamera<L>>();
+    }
 }
 
 pub(crate) fn convert(frustum: &BevyFrustum, eye: Vec3) -> Option<Frustum> {
@@ -177,9 +205,10 @@ fn follow_bevy_frustums<L: Component>(
                 culling.mode = follow.mode;
             }
             None => {
+                // `try_`: the camera may be despawned before the command runs.
                 commands
                     .entity(entity)
-                    .insert(CullingCamera::<L>::for_layer(converted).with_mode(follow.mode));
+                    .try_insert(CullingCamera::<L>::for_layer(converted).with_mode(follow.mode));
             }
         }
     }

@@ -201,15 +201,31 @@ pub(crate) fn cull_cameras<L: Component>(
     index: Res<SpatialIndex<L>>,
     cameras: Query<(Entity, &CullingCamera<L>)>,
     mut lists: Query<&mut VisibleEntityList<L>, With<CullingCamera<L>>>,
+    #[cfg(feature = "bevy_camera")] bevy_cameras: Query<
+        &bevy_camera::Camera,
+        With<CullingCamera<L>>,
+    >,
     mut scratch: Local<CullingScratch>,
     sink: Res<DiagnosticsSink>,
 ) {
+    // A camera on an entity whose Bevy camera is inactive is skipped and
+    // keeps its list, as Bevy skips an inactive camera.
+    let skipped = |entity: Entity| {
+        #[cfg(feature = "bevy_camera")]
+        return bevy_cameras.get(entity).is_ok_and(|c| !c.is_active);
+        #[cfg(not(feature = "bevy_camera"))]
+        {
+            let _ = entity;
+            false
+        }
+    };
     let scratch = &mut *scratch;
+    let mut culled = 0;
     for mode in [CullMode::Conservative, CullMode::Exact] {
         scratch.frustums.clear();
         scratch.cameras.clear();
         for (entity, camera) in &cameras {
-            if camera.mode == mode {
+            if camera.mode == mode && !skipped(entity) {
                 scratch.frustums.push(camera.frustum);
                 scratch.cameras.push(entity);
             }
@@ -222,7 +238,7 @@ pub(crate) fn cull_cameras<L: Component>(
         out.iter_mut().for_each(Vec::clear);
         let (tree, frustums) = (index.tree(), &scratch.frustums);
         frame_queries::visible_into(tree, frustums, mode, &mut scratch.workspace, out);
-        sink.add(|d| d.culling.record(views, &mut scratch.workspace));
+        culled += views;
         for (view, &camera) in scratch.cameras.iter().enumerate() {
             out[view].sort_unstable();
             if let Ok(mut list) = lists.get_mut(camera) {
@@ -230,4 +246,6 @@ pub(crate) fn cull_cameras<L: Component>(
             }
         }
     }
+    // One run, whatever modes its cameras use; the workspace summed both.
+    sink.add(|d| d.culling.record(culled, &mut scratch.workspace));
 }

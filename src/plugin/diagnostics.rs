@@ -35,7 +35,8 @@ use crate::query::QueryWorkspace;
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct QueryWork {
-    /// How many times the family's system ran (once per layer that has work).
+    /// How many times the family's system ran: once per layer that has
+    /// work (whatever modes its cameras or casters use).
     pub runs: u32,
     /// Queries answered: cameras culled, rays cast, joins computed.
     pub queries: u64,
@@ -63,6 +64,14 @@ impl QueryWork {
             sum.entries_tested += stats.entries_tested;
         }
         self.add(queries, sum);
+    }
+
+    /// Adds the work of extra walks made for queries already counted (a
+    /// caster's ray cast again through its filter), without a run.
+    pub(crate) fn add_walks(&mut self, workspace: &mut QueryWorkspace) {
+        let stats = workspace.take_stats();
+        self.nodes_visited += stats.nodes_visited;
+        self.entries_tested += stats.entries_tested;
     }
 
     fn add(&mut self, queries: usize, stats: crate::QueryStats) {

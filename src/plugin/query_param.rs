@@ -98,15 +98,16 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         tree.ray_hits_any_where(ray, &mut self.workspace, |e| filter.allows(e))
     }
 
-    /// Appends the entities `filter` allows whose box overlaps `query`
-    /// (closed boxes) to `out`, unordered. An invalid query box matches
-    /// nothing.
+    /// The entities `filter` allows whose box overlaps `query` (closed
+    /// boxes), unordered, into `out` (cleared first). An invalid query box
+    /// (one built without [`Aabb::new`]'s check) matches nothing.
     pub fn overlapping(
         &mut self,
         query: &Aabb,
         filter: &SpatialQueryFilter,
         out: &mut Vec<Entity>,
     ) {
+        out.clear();
         self.index
             .tree()
             .visit_overlapping(query, &mut self.workspace, |entity, _| {
@@ -117,8 +118,9 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
             });
     }
 
-    /// Appends the entities `filter` allows whose box meets the closed
-    /// sphere to `out`, unordered.
+    /// The entities `filter` allows whose box meets the closed sphere,
+    /// unordered, into `out` (cleared first, also when the sphere is
+    /// refused).
     pub fn overlapping_sphere(
         &mut self,
         center: Vec3,
@@ -126,6 +128,7 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         filter: &SpatialQueryFilter,
         out: &mut Vec<Entity>,
     ) -> Result<(), SpatialError> {
+        out.clear();
         self.index
             .tree()
             .visit_sphere(center, radius, &mut self.workspace, |entity, _, _| {

@@ -335,6 +335,7 @@ pub(crate) fn cast_rays<L: Component>(
 ) {
     let scratch = &mut *scratch;
     let tree = index.tree();
+    let mut cast = 0;
     scratch.modes.clear();
     for (_, caster, _) in &casters {
         if !scratch.modes.contains(&caster.mode) {
@@ -356,7 +357,7 @@ pub(crate) fn cast_rays<L: Component>(
             &mut scratch.workspace,
             &mut scratch.results,
         );
-        sink.add(|d| d.rays.record(scratch.rays.len(), &mut scratch.workspace));
+        cast += scratch.rays.len();
         // The casters of this mode again, in the order their rays were
         // gathered (a query walks its rows in the same order within a run).
         let of_mode = casters.iter().filter(|(_, caster, _)| caster.mode == mode);
@@ -413,4 +414,10 @@ pub(crate) fn cast_rays<L: Component>(
             }
         }
     }
+    // One run, whatever modes its casters use; the walks of the casters
+    // cast again through their filters are part of its work.
+    sink.add(|d| {
+        d.rays.record(cast, &mut scratch.workspace);
+        d.rays.add_walks(&mut scratch.single);
+    });
 }

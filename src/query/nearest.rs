@@ -350,12 +350,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<Neighbor<K>>,
         allow: impl Fn(K) -> bool,
     ) -> Result<(), SpatialError> {
+        // Cleared first: a refused query leaves no earlier answer behind.
+        out.clear();
         if k == 0 {
             return Err(SpatialError::InvalidCount);
         }
         check_point(point)?;
         let limit = limit_sq(max_distance)?;
-        out.clear();
         if k <= SORTED_UP_TO {
             // `out` is the best `k` so far in rank order: its last is the
             // one to evict, and its distance the search limit.

@@ -492,8 +492,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<RayHit<K>>,
         allow: impl Fn(K) -> bool,
     ) -> Result<(), SpatialError> {
-        let ray = ray.canonicalized()?;
+        // Cleared first: a refused query leaves no earlier answer behind.
         out.clear();
+        let ray = ray.canonicalized()?;
         self.visit_ray(&ray, ws, |key, t| {
             if allow(key) {
                 out.push(RayHit { key, t });

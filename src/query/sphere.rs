@@ -197,9 +197,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<Neighbor<K>>,
     ) -> Result<(), SpatialError> {
+        // Cleared first: a refused query leaves no earlier answer behind.
+        out.clear();
         check_point(point)?;
         check_radius_sq(radius)?;
-        out.clear();
         self.visit_sphere(point, radius, ws, |key, _, distance_sq| {
             out.push(Neighbor { key, distance_sq });
             ControlFlow::Continue(())
