@@ -337,3 +337,27 @@ fn a_bevy_camera_with_an_infinite_far_plane_is_followed() {
         );
     }
 }
+
+/// Bevy's box converts to one that contains it: its corners are kept only
+/// where they are exactly its centre ± half extents. A centre of 1e-17
+/// beside a half extent of 1 has `f32` corners ±1, which miss the true
+/// upper corner 1 + 1e-17 (a plain `f64` difference rounds that away).
+#[test]
+fn bevy_boxes_convert_to_boxes_that_contain_them() {
+    let exact = BevyAabb::from_min_max(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(1.0, 4.0, 3.0));
+    let ours = Aabb::try_from(&exact).unwrap();
+    assert_eq!(
+        ours,
+        Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(1.0, 4.0, 3.0)).unwrap()
+    );
+    let tiny_centre = BevyAabb {
+        center: glam::Vec3A::new(1e-17, 0.0, 0.0),
+        half_extents: glam::Vec3A::ONE,
+    };
+    assert_eq!(tiny_centre.max().x, 1.0, "the f32 corner misses 1 + 1e-17");
+    let ours = Aabb::try_from(&tiny_centre).unwrap();
+    // The true corners are -1 + 1e-17 and 1 + 1e-17: the upper one is
+    // above 1, so the box must reach past 1.
+    assert!(ours.max.x > 1.0, "{ours:?}");
+    assert!(ours.min.x <= -1.0 + 1e-17, "{ours:?}");
+}

@@ -37,15 +37,25 @@ impl TryFrom<&BevyAabb> for Aabb {
         .map(|outward| {
             // Where the corners are exact in `f32`, keep them so.
             let (min, max) = (Vec3::from(aabb.min()), Vec3::from(aabb.max()));
-            let exact = (min.as_dvec3() - aabb.center.as_dvec3() + aabb.half_extents.as_dvec3())
-                .cmpeq(glam::DVec3::ZERO)
-                .all()
-                && (max.as_dvec3() - aabb.center.as_dvec3() - aabb.half_extents.as_dvec3())
-                    .cmpeq(glam::DVec3::ZERO)
-                    .all();
+            let (c, h) = (Vec3::from(aabb.center), Vec3::from(aabb.half_extents));
+            let exact = (0..3)
+                .all(|i| sum_is_exactly(c[i], -h[i], min[i]) && sum_is_exactly(c[i], h[i], max[i]));
             if exact { Aabb { min, max } } else { outward }
         })
     }
+}
+
+/// Whether `a + b` is exactly `sum`, as real numbers: the `f64` sum of two
+/// `f32`s and its rounding error (a two-sum, exact in `f64`) must be `sum`
+/// and zero. A plain `f64` difference is not exact where the two differ
+/// in magnitude by more than `f64`'s extra bits (a centre of 1e-17 beside
+/// a half extent of 1).
+fn sum_is_exactly(a: f32, b: f32, sum: f32) -> bool {
+    let (a, b) = (f64::from(a), f64::from(b));
+    let s = a + b;
+    let b_part = s - a;
+    let error = (a - (s - b_part)) + (b - b_part);
+    s == f64::from(sum) && error == 0.0
 }
 
 impl From<Aabb> for BevyAabb {

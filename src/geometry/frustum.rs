@@ -224,6 +224,12 @@ impl Frustum {
     /// unit quaternion does; a zero or non-finite one is an
     /// [`SpatialError::InvalidFrustum`].
     ///
+    /// The side planes are built in `f32`: a field of view under about
+    /// 1e-6 radians is narrower than their rounding, and may cull the very
+    /// centre of the view; an opening wide enough that `tan(fov_y / 2) *
+    /// aspect` overflows (about 1e19) is refused as
+    /// [`SpatialError::InvalidFrustum`].
+    ///
     /// ```
     /// use bevy_rtree::{Aabb, Frustum};
     /// use bevy_rtree::glam::{Quat, Vec3};
