@@ -15,7 +15,7 @@ use bevy_app::prelude::*;
 use bevy_asset::{AssetApp, AssetPlugin, Assets};
 use bevy_camera::visibility::{
     CascadesVisibleEntities, CubemapVisibleEntities, NoCpuCulling, NoFrustumCulling, RenderLayers,
-    ViewVisibility, VisibilityRange, VisibleMeshEntities,
+    ViewVisibility, VisibilityRange, VisibilitySystems, VisibleMeshEntities,
 };
 use bevy_camera::{Camera, Camera3d, CameraPlugin};
 use bevy_ecs::prelude::*;
@@ -439,6 +439,9 @@ fn systems_ordered_against_bevy_s_are_ordered_against_the_index_s() {
     fn camera_probe(lists: Query<&VisibleEntities>) {
         let _ = lists.iter().count();
     }
+    fn visibility_probe(marks: Query<&ViewVisibility>) {
+        let _ = marks.iter().filter(|v| v.get()).count();
+    }
     fn point_writer(mut lists: Query<&mut CubemapVisibleEntities>) {
         lists.iter_mut().for_each(|mut l| l.set_changed());
     }
@@ -449,6 +452,7 @@ fn systems_ordered_against_bevy_s_are_ordered_against_the_index_s() {
         light_probe.into_system_set().intern(),
         cascade_probe.into_system_set().intern(),
         camera_probe.into_system_set().intern(),
+        visibility_probe.into_system_set().intern(),
         point_writer.into_system_set().intern(),
         cascade_writer.into_system_set().intern(),
     ];
@@ -473,6 +477,12 @@ fn systems_ordered_against_bevy_s_are_ordered_against_the_index_s() {
                     light_probe.after(check_point_light_mesh_visibility),
                     cascade_probe.after(check_dir_light_mesh_visibility),
                     camera_probe.after(check_visibility_cpu_culling),
+                    // Bevy's directional light marks its casters by
+                    // command, reading no caster's `ViewVisibility`: a
+                    // reader after the point lights needs no other order.
+                    visibility_probe
+                        .after(check_point_light_mesh_visibility)
+                        .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
                 ),
             );
         }
@@ -502,10 +512,10 @@ fn systems_ordered_against_bevy_s_are_ordered_against_the_index_s() {
     }
 }
 
-/// One system replaces bevy_light's two, which are not ordered against
-/// each other: an app's systems between them (`a` after one, `b` before
-/// the other, `a` before `b`) must not close a cycle around the
-/// replacement, and the app runs as with Bevy's systems.
+/// bevy_light's two systems are not ordered against each other: an app's
+/// systems between them (`a` after one, `b` before the other, `a` before
+/// `b`) must not close a cycle around their replacements, and the app runs
+/// as with Bevy's systems.
 #[test]
 fn systems_between_bevy_s_two_light_systems_make_no_cycle() {
     use bevy_light::{check_dir_light_mesh_visibility, check_point_light_mesh_visibility};

@@ -6,13 +6,11 @@
 
 use std::any::TypeId;
 
-use bevy_camera::primitives::{
-    Aabb as BevyAabb, CascadesFrusta, CubemapFrusta, Frustum as BevyFrustum, Sphere,
-};
+use bevy_camera::primitives::{Aabb as BevyAabb, CubemapFrusta, Frustum as BevyFrustum, Sphere};
 use bevy_camera::visibility::{
-    CascadesVisibleEntities, CubemapVisibleEntities, InheritedVisibility, NoCpuCulling,
-    NoFrustumCulling, RenderLayers, SetViewVisibility, ViewVisibility, VisibilityRange,
-    VisibleEntities, VisibleEntityRanges, VisibleMeshEntities,
+    CubemapVisibleEntities, InheritedVisibility, NoCpuCulling, NoFrustumCulling, RenderLayers,
+    SetViewVisibility, ViewVisibility, VisibilityRange, VisibleEntities, VisibleEntityRanges,
+    VisibleMeshEntities,
 };
 use bevy_camera::{Camera, RenderTarget, ShadowLodOrigin};
 use bevy_ecs::entity::EntityHashSet;
@@ -24,13 +22,12 @@ use bevy_mesh::Mesh3d;
 use bevy_transform::prelude::GlobalTransform;
 use glam::{DVec3, Vec3, Vec3A};
 
-use super::frustum_candidates::{UNTESTED_BY_CASCADES, candidates};
-use super::{BevyVisibilitySettings, Renderable};
+use super::Renderable;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
 
 /// The entities Bevy's light visibility tests: meshes that cast shadows.
-type CasterFilter = (
+pub(super) type CasterFilter = (
     Without<NotShadowCaster>,
     Without<DirectionalLight>,
     Without<NoCpuCulling>,
@@ -55,7 +52,7 @@ type CasterItem<'w, 's> = <Caster<'static> as QueryData>::Item<'w, 's>;
 /// The casters that are not in the tree by construction (the tree holds
 /// only entities with a box, a transform, `ViewVisibility` and frustum
 /// culling): each light tests them one by one, as Bevy does.
-type OutsideTheTree = (
+pub(super) type OutsideTheTree = (
     CasterFilter,
     Or<(
         Without<BevyAabb>,
@@ -68,17 +65,17 @@ type OutsideTheTree = (
 /// Scratch kept from frame to frame.
 #[derive(Default)]
 pub(super) struct LightScratch {
-    workspace: QueryWorkspace,
-    candidates: Vec<(Entity, bool)>,
-    one_by_one: Vec<Entity>,
+    pub(super) workspace: QueryWorkspace,
+    pub(super) candidates: Vec<(Entity, bool)>,
+    pub(super) one_by_one: Vec<Entity>,
     checked: EntityHashSet,
-    faces: [Vec<Entity>; 6],
+    pub(super) faces: [Vec<Entity>; 6],
 }
 
 impl LightScratch {
     /// The casters Bevy's tests decide without the tree: those outside it
     /// by construction, and entries whose box the index refused.
-    fn gather_one_by_one(
+    pub(super) fn gather_one_by_one(
         &mut self,
         outside_the_tree: &Query<Entity, OutsideTheTree>,
         index: &SpatialIndex<Renderable>,
@@ -181,128 +178,6 @@ pub(super) fn check_point_light_visibility_from_index(
     }
 }
 
-/// Replaces bevy_light's `check_dir_light_mesh_visibility`, in
-/// `SimulationLightSystems::CheckLightVisibility`: the same lists of every
-/// cascade of every directional light, in the same order (sorted), and the
-/// same `ViewVisibility` for every caster.
-#[allow(clippy::type_complexity, clippy::too_many_arguments)]
-pub(super) fn check_dir_light_visibility_from_index(
-    mut directional_lights: Query<
-        (
-            &DirectionalLight,
-            &CascadesFrusta,
-            &mut CascadesVisibleEntities,
-            Option<&RenderLayers>,
-            &ViewVisibility,
-        ),
-        Without<SpotLight>,
-    >,
-    mut casters: Query<Caster<'_>, CasterFilter>,
-    outside_the_tree: Query<Entity, OutsideTheTree>,
-    view_transforms: Query<&GlobalTransform, With<Camera>>,
-    index: Res<SpatialIndex<Renderable>>,
-    ranges: Option<Res<VisibleEntityRanges>>,
-    settings: Res<BevyVisibilitySettings>,
-    mut scratch: Local<LightScratch>,
-) {
-    let ranges = ranges.as_deref();
-    let scratch = &mut *scratch;
-    scratch.gather_one_by_one(&outside_the_tree, &index);
-    for (light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
-        // One list per cascade of every view that has cascades, as Bevy
-        // keeps them.
-        visible
-            .entities
-            .retain(|view, _| frusta.frusta.contains_key(view));
-        for (view, view_frusta) in &frusta.frusta {
-            visible
-                .entities
-                .entry(*view)
-                .or_default()
-                .resize(view_frusta.len(), VisibleMeshEntities::default());
-        }
-        if !light.shadow_maps_enabled || !light_visibility.get() {
-            visible.entities.clear();
-            continue;
-        }
-        let mask = mask.cloned().unwrap_or_default();
-        for (view, view_frusta) in &frusta.frusta {
-            let eye = view_transforms
-                .get(*view)
-                .map_or(Vec3::ZERO, GlobalTransform::translation);
-            let Some(lists) = visible.entities.get_mut(view) else {
-                continue;
-            };
-            for (frustum, list) in view_frusta.iter().zip(lists.iter_mut()) {
-                scratch.candidates.clear();
-                candidates(
-                    &index,
-                    frustum,
-                    UNTESTED_BY_CASCADES,
-                    eye,
-                    &mut scratch.workspace,
-                    &mut scratch.candidates,
-                );
-                let cascade = &mut scratch.faces[0];
-                cascade.clear();
-                for &(entity, proven) in &scratch.candidates {
-                    if let Ok(mut item) = casters.get_mut(entity) {
-                        let proven = proven && settings.prove_inside;
-                        let test = (frustum, proven);
-                        decide_cascade(&mut item, test, &mask, *view, ranges, cascade);
-                    }
-                }
-                for &entity in &scratch.one_by_one {
-                    if let Ok(mut item) = casters.get_mut(entity) {
-                        let test = (frustum, false);
-                        decide_cascade(&mut item, test, &mask, *view, ranges, cascade);
-                    }
-                }
-                cascade.sort_unstable();
-                list.entities.clear();
-                list.entities.append(cascade);
-            }
-            if view_frusta.is_empty() {
-                mark_unbounded_casters(&mut casters, &scratch.one_by_one, &mask, *view, ranges);
-            }
-        }
-    }
-}
-
-/// A view with no cascades still sees the casters Bevy cannot bound (no
-/// `Aabb` or no transform): Bevy marks them visible before it looks at the
-/// cascades, and lists them in none.
-fn mark_unbounded_casters(
-    casters: &mut Query<Caster<'_>, CasterFilter>,
-    one_by_one: &[Entity],
-    mask: &RenderLayers,
-    view: Entity,
-    ranges: Option<&VisibleEntityRanges>,
-) {
-    for &entity in one_by_one {
-        let Ok(item) = casters.get_mut(entity) else {
-            continue;
-        };
-        let (entity, inherited, mut view_visibility, entity_mask, aabb, transform, has_range, _) =
-            item;
-        let unbounded = aabb.is_none() || transform.is_none();
-        let origin = Some(view);
-        if unbounded
-            && may_cast(
-                entity,
-                inherited,
-                entity_mask,
-                has_range,
-                mask,
-                origin,
-                ranges,
-            )
-        {
-            mark(&mut view_visibility);
-        }
-    }
-}
-
 /// A light's range sphere, as Bevy's test builds it.
 fn range_sphere(transform: &GlobalTransform, range: f32) -> Sphere {
     Sphere {
@@ -399,44 +274,11 @@ fn decide_faces(
     }
 }
 
-/// Bevy's decision for one caster and one cascade of a directional light
-/// (its frustum, and whether the tree proved the caster inside every
-/// plane Bevy tests).
-fn decide_cascade(
-    item: &mut CasterItem<'_, '_>,
-    (frustum, proven): (&BevyFrustum, bool),
-    mask: &RenderLayers,
-    view: Entity,
-    ranges: Option<&VisibleEntityRanges>,
-    out: &mut Vec<Entity>,
-) {
-    let (entity, inherited, view_visibility, entity_mask, aabb, transform, has_range, nfc) = item;
-    if !may_cast(
-        *entity,
-        inherited,
-        *entity_mask,
-        *has_range,
-        mask,
-        Some(view),
-        ranges,
-    ) {
-        return;
-    }
-    if let (Some(aabb), Some(transform), false, false) = (aabb, transform, *nfc, proven) {
-        // Shadow casters before the near plane still cast: no near plane.
-        if !frustum.intersects_obb(aabb, &transform.affine(), false, true) {
-            return;
-        }
-    }
-    mark(view_visibility);
-    out.push(*entity);
-}
-
 /// Bevy's checks before any shape test: visible in the hierarchy, on a
 /// layer the light renders, within its visibility range of `origin` (the
 /// cascade's view, or the shadow level-of-detail origin; with none, an
 /// entity with a range casts no point or spot shadow).
-fn may_cast(
+pub(super) fn may_cast(
     entity: Entity,
     inherited: &InheritedVisibility,
     entity_mask: Option<&RenderLayers>,

@@ -9,6 +9,8 @@
 //! camera's `VisibleEntities` come out as Bevy's own system makes them.
 
 mod cameras;
+#[cfg(feature = "bevy_light")]
+mod cascades;
 mod columns;
 mod frustum_candidates;
 #[cfg(feature = "bevy_light")]
@@ -319,7 +321,8 @@ fn take_out_bevy_systems(world: &mut World) {
 #[cfg(feature = "bevy_light")]
 fn add_light_visibility(app: &mut App) {
     use bevy_light::SimulationLightSystems;
-    use lights::{check_dir_light_visibility_from_index, check_point_light_visibility_from_index};
+    use cascades::check_dir_light_visibility_from_index;
+    use lights::check_point_light_visibility_from_index;
     app.add_systems(
         PostUpdate,
         (
