@@ -297,13 +297,26 @@ fn a_camera_that_stops_following_or_is_inactive_is_not_culled() {
 /// A Bevy camera with an infinite far plane (`far: f32::INFINITY`, which
 /// Bevy stores as a plane of infinite or NaN offset and never culls with)
 /// is followed, looking along an axis or turned, and sees a box a
-/// thousand kilometres ahead, as the oracle does.
+/// thousand kilometres ahead, as the oracle does. A camera at a NaN
+/// position is still refused.
 #[test]
 fn a_bevy_camera_with_an_infinite_far_plane_is_followed() {
     let projection = PerspectiveProjection {
         far: f32::INFINITY,
         ..PerspectiveProjection::default()
     };
+    // Bevy's frustum of a camera at a NaN position, its far plane finite
+    // or infinite: refused.
+    for far in [120.0, f32::INFINITY] {
+        let nan_at = Transform::from_xyz(f32::NAN, 2.0, 10.0);
+        let broken = PerspectiveProjection {
+            far,
+            ..PerspectiveProjection::default()
+        }
+        .compute_frustum(&GlobalTransform::from(nan_at));
+        assert!(bevy_rtree::Frustum::from_bevy(&broken, Vec3::ZERO).is_err());
+    }
+
     for turn in [0.0, 0.7] {
         let mut app = App::new();
         app.add_plugins(SpatialIndexPlugin::default());

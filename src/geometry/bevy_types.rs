@@ -66,6 +66,9 @@ impl From<Aabb> for BevyAabb {
     }
 }
 
+/// The index of Bevy's far plane among a `Frustum`'s half-spaces.
+const FAR_PLANE: usize = 5;
+
 impl Frustum {
     /// Bevy's `Frustum` (world-space half-spaces, as Bevy's camera keeps
     /// it) re-based on `eye`, usually the camera's position. All six planes
@@ -87,17 +90,16 @@ impl Frustum {
     /// # Ok::<(), bevy_rtree::SpatialError>(())
     /// ```
     pub fn from_bevy(frustum: &BevyFrustum, eye: Vec3) -> Result<Frustum, SpatialError> {
-        let planes = frustum.half_spaces.map(|h| {
-            let (normal, d) = (Vec3::from(h.normal()), h.d());
-            // A plane whose value is NaN or +inf at every point never culls
-            // in Bevy's tests: its infinite far plane (`far: f32::INFINITY`,
-            // stored as `(n, +inf)`, or with a NaN where `n` has a zero).
-            if d == f32::INFINITY || d.is_nan() || normal.is_nan() {
-                (Vec3::ZERO, f32::INFINITY)
-            } else {
-                (normal, d)
-            }
-        });
+        let mut planes = frustum.half_spaces.map(|h| (Vec3::from(h.normal()), h.d()));
+        // Bevy's infinite far plane (`far: f32::INFINITY`) never culls in
+        // its tests: it is stored as `(n, +inf)`, as `(n, NaN)` with a
+        // finite `n` that has a zero, or as `(NaN, +inf)`. A NaN in any
+        // other plane (a camera at a NaN position or turned by a NaN) is
+        // still refused.
+        let (normal, d) = planes[FAR_PLANE];
+        if d == f32::INFINITY || (d.is_nan() && normal.is_finite()) {
+            planes[FAR_PLANE] = (Vec3::ZERO, f32::INFINITY);
+        }
         Frustum::from_world_planes(eye, planes)
     }
 }
