@@ -169,7 +169,7 @@
 //! Sphere and nearest-neighbour queries test lanes one by one and were not
 //! compared.
 //! `cargo run --release --example accuracy_cost --features bevy_camera`
-//! compares all three widths.
+//! compares widths 4, 8 and 16.
 //!
 //! ## Layout
 //!

@@ -55,9 +55,10 @@ fn minimal_sees_and_hits_the_crates_in_front() {
 #[test]
 fn town_through_the_plugin_matches_the_oracle() {
     // Enough entities for both join layers (barrels start at 10,000), and
-    // frames enough for the maintenance to repack and rebuild (in slices,
-    // as where there is no task pool); the brute-force check of 2,000 rays
-    // dominates, so it runs every tenth frame and on the first two.
+    // 30 frames of moves repaired by the maintenance, with rebuilds in
+    // slices where a tree wears (as where there is no task pool); the
+    // brute-force check of 2,000 rays dominates, so it runs every tenth
+    // frame and on the first two.
     let plugin = SpatialIndexPlugin {
         rebuild: RebuildMode::InSlices(std::time::Duration::from_micros(200)),
         ..SpatialIndexPlugin::default()

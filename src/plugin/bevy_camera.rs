@@ -205,10 +205,16 @@ fn follow_bevy_frustums<L: Component>(
                 culling.mode = follow.mode;
             }
             None => {
-                // `try_`: the camera may be despawned before the command runs.
-                commands
-                    .entity(entity)
-                    .try_insert(CullingCamera::<L>::for_layer(converted).with_mode(follow.mode));
+                // Only onto an entity that still follows when the command
+                // runs: it may be despawned, or stop following, meanwhile.
+                let camera = CullingCamera::<L>::for_layer(converted).with_mode(follow.mode);
+                commands.queue(move |world: &mut World| {
+                    if let Ok(mut entity) = world.get_entity_mut(entity)
+                        && entity.contains::<FollowBevyFrustum<L>>()
+                    {
+                        entity.insert(camera);
+                    }
+                });
             }
         }
     }

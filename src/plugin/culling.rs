@@ -246,6 +246,9 @@ pub(crate) fn cull_cameras<L: Component>(
             }
         }
     }
-    // One run, whatever modes its cameras use; the workspace summed both.
-    sink.add(|d| d.culling.record(culled, &mut scratch.workspace));
+    // One run, whatever modes its cameras use (none, if every camera was
+    // skipped); the workspace summed both.
+    if culled > 0 {
+        sink.add(|d| d.culling.record(culled, &mut scratch.workspace));
+    }
 }

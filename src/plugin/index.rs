@@ -379,13 +379,15 @@ pub(crate) fn apply_changes<L: Component>(
         }
     }
     if !fresh.is_empty() {
-        count.inserted = fresh.len() as u64;
-        if fresh.len() > index.tree.len() {
-            if let Ok(ids) = index.tree.insert_bulk(fresh.iter().copied()) {
-                for (&(entity, _), id) in fresh.iter().zip(ids) {
-                    index.proxies.insert(entity, id);
-                    inserted.push((entity, id));
-                }
+        // Many at once in bulk; should the bulk load ever be refused (the
+        // boxes were checked), one by one, as the moves above.
+        let bulk = (fresh.len() > index.tree.len())
+            .then(|| index.tree.insert_bulk(fresh.iter().copied()).ok())
+            .flatten();
+        if let Some(ids) = bulk {
+            for (&(entity, _), id) in fresh.iter().zip(ids) {
+                index.proxies.insert(entity, id);
+                inserted.push((entity, id));
             }
         } else {
             for &(entity, aabb) in fresh.iter() {
@@ -395,6 +397,7 @@ pub(crate) fn apply_changes<L: Component>(
                 }
             }
         }
+        count.inserted = inserted.len() as u64;
     }
     if count.inserted + count.updated + count.removed > 0 {
         index.generation += 1;

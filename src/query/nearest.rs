@@ -309,9 +309,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// distance `<= max_distance` count (inclusive). Fewer than `k` when
     /// fewer entries qualify.
     ///
-    /// Errors, checked before `out` is touched:
-    /// [`SpatialError::InvalidCount`] if `k == 0`, and those of
-    /// [`RTree::visit_nearest`].
+    /// Errors (which leave `out` empty): [`SpatialError::InvalidCount`] if
+    /// `k == 0`, and those of [`RTree::visit_nearest`].
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};

@@ -470,8 +470,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Every hit of one ray, sorted by `(t, key)` and cut to `limit`,
-    /// written to `out` (cleared first). An invalid ray is an
-    /// [`SpatialError::InvalidRay`], checked before `out` is touched.
+    /// written to `out` (cleared first, also when the ray is refused). An
+    /// invalid ray is an [`SpatialError::InvalidRay`].
     pub fn cast_ray_all(
         &self,
         ray: &Ray,

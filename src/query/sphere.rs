@@ -173,8 +173,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Every entry within `radius` of `point` (distance to its closed box
     /// `<= radius`, the sphere predicate of [`RTree::visit_sphere`]) with its
     /// distance, written to `out` (cleared first) sorted by
-    /// `(distance_sq, key)`. Errors as for [`RTree::visit_sphere`], checked
-    /// before `out` is touched.
+    /// `(distance_sq, key)`. Errors as for [`RTree::visit_sphere`], which
+    /// leave `out` empty.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};

@@ -158,8 +158,9 @@ impl BevyVisibilitySettings {
 /// `VisibilitySystems::CheckVisibility`.
 ///
 /// A system of the app that writes `GlobalTransform` or `Aabb` (or spawns
-/// or enables renderables) after transform propagation but before Bevy's
-/// culling must run before this set too: Bevy's culling would see its
+/// or enables renderables, or takes `NoFrustumCulling` or `NoCpuCulling`
+/// off them) after transform propagation but before Bevy's culling must
+/// run before this set too: Bevy's culling would see its
 /// change in the same frame, and the index only from the next one. The
 /// same holds for the lights' shadow visibility (feature `bevy_light`),
 /// which runs after camera culling from the same index: a shadow caster
