@@ -119,8 +119,8 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
     }
 
     /// The entities `filter` allows whose box meets the closed sphere,
-    /// unordered, into `out` (cleared first, also when the sphere is
-    /// refused).
+    /// unordered, into `out` (cleared first; a refused sphere leaves it as
+    /// it was, as every query of the crate does).
     pub fn overlapping_sphere(
         &mut self,
         center: Vec3,
@@ -128,6 +128,9 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
         filter: &SpatialQueryFilter,
         out: &mut Vec<Entity>,
     ) -> Result<(), SpatialError> {
+        // Refused before `out` is touched.
+        crate::geometry::predicates::check_point(center)?;
+        crate::geometry::predicates::check_distance(radius)?;
         out.clear();
         self.index
             .tree()

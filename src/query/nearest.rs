@@ -309,8 +309,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// distance `<= max_distance` count (inclusive). Fewer than `k` when
     /// fewer entries qualify.
     ///
-    /// Errors (which leave `out` empty): [`SpatialError::InvalidCount`] if
-    /// `k == 0`, and those of [`RTree::visit_nearest`].
+    /// Errors, checked before `out` is touched:
+    /// [`SpatialError::InvalidCount`] if `k == 0`, and those of
+    /// [`RTree::visit_nearest`].
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
@@ -349,13 +350,12 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<Neighbor<K>>,
         allow: impl Fn(K) -> bool,
     ) -> Result<(), SpatialError> {
-        // Cleared first: a refused query leaves no earlier answer behind.
-        out.clear();
         if k == 0 {
             return Err(SpatialError::InvalidCount);
         }
         check_point(point)?;
         let limit = limit_sq(max_distance)?;
+        out.clear();
         if k <= SORTED_UP_TO {
             // `out` is the best `k` so far in rank order: its last is the
             // one to evict, and its distance the search limit.

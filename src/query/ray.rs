@@ -470,8 +470,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Every hit of one ray, sorted by `(t, key)` and cut to `limit`,
-    /// written to `out` (cleared first, also when the ray is refused). An
-    /// invalid ray is an [`SpatialError::InvalidRay`].
+    /// written to `out` (cleared first). An invalid ray is an
+    /// [`SpatialError::InvalidRay`], checked before `out` is touched.
     pub fn cast_ray_all(
         &self,
         ray: &Ray,
@@ -492,9 +492,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         out: &mut Vec<RayHit<K>>,
         allow: impl Fn(K) -> bool,
     ) -> Result<(), SpatialError> {
-        // Cleared first: a refused query leaves no earlier answer behind.
-        out.clear();
         let ray = ray.canonicalized()?;
+        out.clear();
         self.visit_ray(&ray, ws, |key, t| {
             if allow(key) {
                 out.push(RayHit { key, t });

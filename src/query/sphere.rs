@@ -173,8 +173,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Every entry within `radius` of `point` (distance to its closed box
     /// `<= radius`, the sphere predicate of [`RTree::visit_sphere`]) with its
     /// distance, written to `out` (cleared first) sorted by
-    /// `(distance_sq, key)`. Errors as for [`RTree::visit_sphere`], which
-    /// leave `out` empty.
+    /// `(distance_sq, key)`. Errors as for [`RTree::visit_sphere`], checked
+    /// before `out` is touched.
     ///
     /// ```
     /// use bevy_rtree::{Aabb, QueryWorkspace, RTree};
@@ -197,10 +197,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         out: &mut Vec<Neighbor<K>>,
     ) -> Result<(), SpatialError> {
-        // Cleared first: a refused query leaves no earlier answer behind.
-        out.clear();
         check_point(point)?;
         check_radius_sq(radius)?;
+        out.clear();
         self.visit_sphere(point, radius, ws, |key, _, distance_sq| {
             out.push(Neighbor { key, distance_sq });
             ControlFlow::Continue(())
