@@ -502,6 +502,66 @@ fn exact_mode_sees_nothing_between_planes_that_face_apart() {
     assert_eq!(visited, 0);
 }
 
+/// Four planes whose normals are nearly coplanar (the determinants of
+/// their triples about 4e-9): a wedge cut at both ends, with a real
+/// interior. Its corners, solved by Cramer's rule, move by thousands of
+/// metres at 1e12 m, more than a fixed relative tolerance covers; a box
+/// through a point inside every plane by more than a kilometre must stay
+/// visible in exact mode.
+#[test]
+fn exact_mode_keeps_a_box_in_a_wedge_of_nearly_coplanar_planes() {
+    let plane = |n: [f64; 3], offset: f64| HalfSpace {
+        normal: glam::DVec3::from_array(n).as_vec3(),
+        offset: offset as f32,
+    };
+    let i = HalfSpace::INACTIVE;
+    let planes = [
+        plane(
+            [-0.7908066511154175, 0.6835565567016602, 0.1821395605802536],
+            33029203968.0,
+        ),
+        plane(
+            [0.44397300481796265, 0.9656855463981628, -0.7032955884933472],
+            944905322496.0,
+        ),
+        plane(
+            [-0.7268339395523071, 0.8227028846740723, 0.08080098778009415],
+            169181478912.0,
+        ),
+        plane(
+            [
+                -0.6476064920425415,
+                0.9950302839279175,
+                -0.04470274597406387,
+            ],
+            337800691712.0,
+        ),
+        i,
+        i,
+    ];
+    let wedge = Frustum::new(Vec3::ZERO, planes).unwrap();
+    // A point inside every plane by more than a kilometre (in `f64`, whose
+    // rounding here is below a millimetre).
+    let witness = glam::DVec3::new(-580841772169.04, -717923418112.0, -8902393856.0);
+    for stored in &wedge.planes()[..4] {
+        let value = stored.normal.as_dvec3().dot(witness) + f64::from(stored.offset);
+        let distance = value / stored.normal.as_dvec3().length();
+        assert!(distance > 1_000.0, "{distance}");
+    }
+    let through = common::aabb(
+        [-1680353525760.0, -717923418112.0, -8902393856.0],
+        [518669860864.0, -717923418112.0, -8902393856.0],
+    );
+    assert!(through.min.as_dvec3().x <= witness.x && witness.x <= through.max.as_dvec3().x);
+    let (tree, oracle) = with_distractors(&[through]);
+    let exact = tree.visible(&wedge, CullMode::Exact);
+    assert!(
+        exact.contains(&0),
+        "a box through an inside point is culled"
+    );
+    assert_eq!(exact, oracle.visible(&wedge, CullMode::Exact));
+}
+
 #[test]
 fn an_inactive_far_plane_sees_boxes_at_1e14_metres() {
     let frustum = Frustum::perspective(

@@ -106,16 +106,18 @@ impl FrustumSat {
         }
         for axis in candidate_axes.into_iter().take(MAX_AXES) {
             let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-            for v in &vertices {
-                let d = axis.dot(*v);
-                lo = lo.min(d);
-                hi = hi.max(d);
+            for &(v, error) in &vertices {
+                // Each vertex as far as its rounding may have moved it.
+                let d = axis.dot(v);
+                let reach = error * axis.length();
+                lo = lo.min(d - reach);
+                hi = hi.max(d + reach);
             }
             // Widen by a relative tolerance, and to infinity along every
             // unbounded direction the axis does not see as exactly flat.
             let scale = vertices
                 .iter()
-                .map(|v| v.abs().max_element())
+                .map(|(v, _)| v.abs().max_element())
                 .fold(0.0, f64::max)
                 * axis.length();
             lo -= 1e-9 * scale;
@@ -187,13 +189,15 @@ impl FrustumSat {
     }
 }
 
-/// The vertices (intersections of three planes inside all others) and the
+/// The vertices (intersections of three planes inside all others), each
+/// with a bound on how far its rounding may have moved it, and the
 /// unbounded directions (intersections of two planes inside all others) of
 /// `{x : n·x + d > 0 for every plane}`, relative to the eye.
-fn polytope(planes: &[(DVec3, f64)]) -> (Vec<DVec3>, Vec<DVec3>) {
-    let inside = |x: DVec3, skip: &[usize]| {
+fn polytope(planes: &[(DVec3, f64)]) -> (Vec<(DVec3, f64)>, Vec<DVec3>) {
+    let inside = |x: DVec3, error: f64, skip: &[usize]| {
         planes.iter().enumerate().all(|(k, (n, d))| {
-            skip.contains(&k) || n.dot(x) + d >= -1e-9 * (n.length() * x.length() + d.abs() + 1.0)
+            let tolerance = 1e-9 * (n.length() * x.length() + d.abs() + 1.0);
+            skip.contains(&k) || n.dot(x) + d >= -(tolerance + n.length() * error)
         })
     };
     let mut vertices = Vec::new();
@@ -201,15 +205,27 @@ fn polytope(planes: &[(DVec3, f64)]) -> (Vec<DVec3>, Vec<DVec3>) {
         for j in i + 1..planes.len() {
             for k in j + 1..planes.len() {
                 let (a, b, c) = (planes[i], planes[j], planes[k]);
+                let size = a.0.length() * b.0.length() * c.0.length();
                 let det = a.0.dot(b.0.cross(c.0));
-                if det.abs() < 1e-12 * a.0.length() * b.0.length() * c.0.length() {
+                if det.abs() < 1e-12 * size {
                     continue;
                 }
                 // Solve n·x = -d for the three planes (Cramer's rule).
-                let x =
-                    (b.0.cross(c.0) * -a.1 + c.0.cross(a.0) * -b.1 + a.0.cross(b.0) * -c.1) / det;
-                if x.is_finite() && inside(x, &[i, j, k]) {
-                    vertices.push(x);
+                let (bc, ca, ab) = (b.0.cross(c.0), c.0.cross(a.0), a.0.cross(b.0));
+                let x = (bc * -a.1 + ca * -b.1 + ab * -c.1) / det;
+                // Where the three normals are nearly coplanar, the
+                // determinant and the numerator both cancel, and the vertex
+                // moves by about u / |det| of the terms, in any direction:
+                // a bound of its error (the normals and offsets are exact
+                // `f32`s; each product and sum rounds by at most u, with
+                // room to spare).
+                let terms = bc.length() * a.1.abs()
+                    + ca.length() * b.1.abs()
+                    + ab.length() * c.1.abs()
+                    + x.length() * size;
+                let error = 16.0 * f64::EPSILON * terms / det.abs();
+                if x.is_finite() && error.is_finite() && inside(x, error, &[i, j, k]) {
+                    vertices.push((x, error));
                 }
             }
         }
