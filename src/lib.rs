@@ -133,7 +133,9 @@
 //! ## Accuracy options
 //!
 //! Two knobs trade precision for time; neither drops a right answer (but
-//! for a frustum of next to no volume, which exact mode may see as empty):
+//! for slivers thinner than about 1e-11 of their distance from the eye,
+//! which exact mode may miss: a frustum of next to no volume, and the
+//! edge beside an endless wedge; contract, S7):
 //! - [`CullMode::Conservative`] (default) may report a large box near a
 //!   frustum edge that is really outside; [`CullMode::Exact`] removes those
 //!   with a separating-axis test in `f64`.

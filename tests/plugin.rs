@@ -1062,9 +1062,10 @@ fn diagnostics_count_one_run_and_every_walk() {
     assert_eq!(d.rays.nodes_visited, batches + recast);
 }
 
-/// `SpatialQuery` clears every output before it answers, and a refused
-/// query leaves it as it was (the error is found before the output is
-/// touched, as everywhere in the crate).
+/// `SpatialQuery`'s box and sphere overlaps clear their output before they
+/// answer (as its other queries do), and a refused query leaves it as it
+/// was (the error is found before the output is touched, as everywhere in
+/// the crate).
 #[test]
 fn spatial_query_outputs_hold_this_answer_only() {
     #[derive(Resource, Default)]

@@ -538,6 +538,7 @@ fn a_respawn_replayed_by_the_catch_up_wears_the_tiling_twice() {
             tree.remove(id).unwrap();
             let again = tree.insert(i as u32, far(i)).unwrap();
             // The freed slot is taken again, under a new generation.
+            assert_eq!(again.index(), id.index());
             assert_ne!(again, id);
         }
     };

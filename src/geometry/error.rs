@@ -26,7 +26,9 @@ pub enum SpatialError {
     /// A ray whose origin is not finite, whose direction is zero or not finite
     /// after canonicalisation, or whose `max_t` is negative or NaN.
     InvalidRay,
-    /// A frustum with a NaN plane, a zero normal with a finite offset, or an
+    /// A frustum with a NaN plane (but for Bevy's infinite far plane in
+    /// `Frustum::from_bevy`, feature `bevy_camera`), a zero normal with a
+    /// finite offset, or an
     /// eye position that is not finite or lies beyond
     /// [`MAX_COORD`](crate::MAX_COORD); for [`Frustum::perspective`](crate::Frustum::perspective),
     /// also a camera parameter out of its range or a zero or non-finite

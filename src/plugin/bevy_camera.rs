@@ -22,8 +22,9 @@ use crate::query::CullMode;
 /// so its [`VisibleEntityList`](super::VisibleEntityList) lists what the
 /// camera sees. The eye is the camera's world position.
 ///
-/// A frustum that cannot be converted (not finite) keeps the previous one
-/// and logs a warning once per camera. Removing `FollowBevyFrustum` (or the
+/// A frustum that cannot be converted (a NaN or infinite plane other than
+/// Bevy's infinite far plane, see [`Frustum::from_bevy`]) keeps the
+/// previous one and logs a warning once per camera. Removing `FollowBevyFrustum` (or the
 /// camera's `Frustum`) removes the `CullingCamera` and its list; a Bevy
 /// camera with `is_active: false` is not culled and keeps its last list,
 /// as Bevy skips it.

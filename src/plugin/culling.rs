@@ -20,7 +20,9 @@ use crate::query::CullMode;
 ///
 /// Culling runs only while at least one `CullingCamera<L>` exists; all
 /// cameras of a layer share one traversal of the tree (per eight cameras and
-/// per [`CullMode`]).
+/// per [`CullMode`]). A camera on an entity whose Bevy `Camera` is inactive
+/// (`is_active: false`, feature `bevy_camera`) is skipped and keeps its
+/// last list, as Bevy skips it.
 ///
 /// ```
 /// use bevy_app::prelude::*;

@@ -36,7 +36,8 @@ use crate::query::QueryWorkspace;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct QueryWork {
     /// How many times the family's system ran: once per layer that has
-    /// work (whatever modes its cameras or casters use).
+    /// work (whatever modes its cameras or casters use), and once per join
+    /// that is computed.
     pub runs: u32,
     /// Queries answered: cameras culled, rays cast, joins computed.
     pub queries: u64,

@@ -318,7 +318,8 @@ pub trait SpatialAppExt {
     ///
     /// If [`SpatialIndexPlugin`] has not been added yet: the layer would
     /// otherwise be built with settings the plugin added later could not
-    /// change.
+    /// change. With feature `bevy_camera`, also for the renderables' layer
+    /// (`Renderable`) before `BevyVisibilityPlugin`, which registers it.
     fn add_spatial_layer<L: Component>(&mut self) -> &mut Self;
 
     /// Computes, every frame, the pairs of layer `A` × layer `B` within
@@ -499,9 +500,18 @@ pub(crate) fn layer_must_be_registered<L: Component>(
 ) {
     if !world.contains_resource::<index::SpatialIndex<L>>() {
         let layer = std::any::type_name::<L>();
+        #[cfg(feature = "bevy_camera")]
+        let renderables =
+            std::any::TypeId::of::<L>() == std::any::TypeId::of::<bevy_visibility::Renderable>();
+        #[cfg(not(feature = "bevy_camera"))]
+        let renderables = false;
+        let fix = if renderables {
+            "add BevyVisibilityPlugin, which registers it".to_string()
+        } else {
+            format!("call app.add_spatial_layer::<{layer}>() after adding SpatialIndexPlugin")
+        };
         panic!(
-            "{} on {} uses the spatial layer {layer}, which is not registered: \
-             call app.add_spatial_layer::<{layer}>() after adding SpatialIndexPlugin",
+            "{} on {} uses the spatial layer {layer}, which is not registered: {fix}",
             world
                 .components()
                 .get_name(context.component_id)

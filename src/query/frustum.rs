@@ -31,9 +31,10 @@ pub enum CullMode {
     /// edges, in `f64`; the frustum's own planes are the conservative
     /// test). Where rounding leaves a projection uncertain its interval is
     /// widened, so rounding can keep a box that lies just outside but never
-    /// drop one that is inside, with one exception: a frustum whose volume
-    /// is thinner than about 1e-11 of its distance from the eye may count
-    /// as empty and see nothing (contract, S7). A frustum whose planes have no common
+    /// drop one that is inside, but for slivers thinner than about 1e-11 of
+    /// their distance from the eye (contract, S7): a frustum of next to no
+    /// volume may count as empty and see nothing, and one that runs without
+    /// end along a line may miss such a sliver beside it. A frustum whose planes have no common
     /// corner (two side planes alone, a wedge) is projected from its slice
     /// through the eye. Costs a few dozen dot products per boundary entry.
     Exact,

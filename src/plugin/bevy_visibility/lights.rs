@@ -1,8 +1,8 @@
-//! Bevy's shadow visibility of lights from the index (feature
-//! `bevy_light`): the tree gives each point and spot light the shadow
-//! casters its range may reach and each directional light's cascade the
-//! casters its planes may see; Bevy's own tests decide every candidate, so
-//! the lists are Bevy's.
+//! Bevy's shadow visibility of point and spot lights from the index
+//! (feature `bevy_light`): the tree gives each light the shadow casters
+//! its range may reach; Bevy's own tests decide every candidate, so the
+//! lists are Bevy's. The directional lights' cascades are in `cascades`,
+//! which shares the casters' filters kept here.
 
 use std::any::TypeId;
 

@@ -328,8 +328,8 @@ fn add_light_visibility(app: &mut App) {
         PostUpdate,
         (
             check_point_light_visibility_from_index.in_set(orders::ServesPointLightVisibility),
-            // Both mark casters visible, which commutes: they need no order,
-            // as Bevy's two have none.
+            // No order between them, as Bevy's two have none (the
+            // directional one marks its casters by command afterwards).
             check_dir_light_visibility_from_index
                 .in_set(orders::ServesDirectionalLightVisibility)
                 .ambiguous_with(check_point_light_visibility_from_index),
