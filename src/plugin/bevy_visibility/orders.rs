@@ -15,7 +15,11 @@
 //! Not carried over (each logged at debug level): an order of a whole set
 //! of the app (the schedule hands out its sets only by reference), and of
 //! a function added more than once (which cannot be ordered against by
-//! name).
+//! name). Nor what the schedule keeps to itself: an order's opt-out of
+//! sync points (`after_ignore_deferred`, carried as a plain order, which
+//! may add a sync point Bevy's system did not have), and an exemption from
+//! ambiguity against Bevy's system (`ambiguous_with`, `ignore_ambiguity`),
+//! which does not cover the replacement.
 
 use bevy_ecs::schedule::graph::Direction;
 use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, NodeId, Schedule, SystemSet};
