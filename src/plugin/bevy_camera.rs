@@ -24,10 +24,10 @@ use crate::query::CullMode;
 ///
 /// A frustum that cannot be converted (a NaN or infinite plane other than
 /// Bevy's infinite far plane, see [`Frustum::from_bevy`]) keeps the
-/// previous one and logs a warning once per camera. Removing `FollowBevyFrustum` (or the
-/// camera's `Frustum`) removes the `CullingCamera` and its list; a Bevy
-/// camera with `is_active: false` is not culled and keeps its last list,
-/// as Bevy skips it.
+/// previous one and logs a warning once per camera. Removing
+/// `FollowBevyFrustum` (or the camera's `Frustum`) removes the
+/// `CullingCamera` and its list; a Bevy camera with `is_active: false` is
+/// not culled and keeps its last list, as Bevy skips it.
 ///
 /// ```
 /// use bevy_app::prelude::*;

@@ -58,16 +58,13 @@ impl QueryWork {
     /// queries (one each where they ran in parallel).
     #[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
     pub(crate) fn record_workspaces(&mut self, queries: usize, workspaces: &mut [QueryWorkspace]) {
-        let mut sum = crate::QueryStats::default();
+        self.add(queries, crate::QueryStats::default());
         for ws in workspaces {
-            let stats = ws.take_stats();
-            sum.nodes_visited += stats.nodes_visited;
-            sum.entries_tested += stats.entries_tested;
+            self.add_walks(ws);
         }
-        self.add(queries, sum);
     }
 
-    /// Adds the work of extra walks made for queries already counted (a
+    /// Adds the work of walks made for queries already counted (a
     /// caster's ray cast again through its filter), without a run.
     pub(crate) fn add_walks(&mut self, workspace: &mut QueryWorkspace) {
         let stats = workspace.take_stats();
