@@ -88,6 +88,30 @@ fn an_unbounded_ray_does_not_hit_a_box_at_infinity() {
     );
 }
 
+/// `PreparedRay::entry` is public and takes any `Aabb`: its slab test skips
+/// a NaN bound, so a box of NaNs was "entered" at `t = 0` by every ray,
+/// where every other predicate of the crate matches no such box.
+#[test]
+fn a_ray_enters_no_box_with_a_nan_coordinate() {
+    let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0).unwrap();
+    let prepared = ray.prepared().unwrap();
+    let all_nan = Aabb {
+        min: Vec3::NAN,
+        max: Vec3::NAN,
+    };
+    let one_nan = Aabb {
+        min: Vec3::new(f32::NAN, -1.0, -1.0),
+        max: Vec3::new(5.0, 1.0, 1.0),
+    };
+    let around_the_origin = common::aabb([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]);
+    for bad in [all_nan, one_nan] {
+        assert_eq!(prepared.entry(&bad, 10.0), None, "{bad:?}");
+        assert!(!bad.intersects(&around_the_origin), "{bad:?}");
+    }
+    // The same ray still enters a valid box around its origin at 0.
+    assert_eq!(prepared.entry(&around_the_origin, 10.0), Some(0.0));
+}
+
 /// Nodes a box query of every entry's own box visits, summed: a measure of
 /// how well the tree is packed that no timing noise disturbs.
 fn box_query_visits(tree: &RTree<u32>, boxes: &[Aabb]) -> u64 {

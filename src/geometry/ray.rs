@@ -115,9 +115,16 @@ impl PreparedRay {
 
     /// Where the ray enters `aabb` (`0` if it starts inside or on it), if it
     /// does so at `t <= limit`; pass [`max_t`](Self::max_t) or a smaller
-    /// limit such as the best hit so far.
+    /// limit such as the best hit so far. A box with a NaN coordinate is
+    /// entered nowhere, as every other predicate of the crate treats it.
     #[inline]
     pub fn entry(&self, aabb: &Aabb, limit: f32) -> Option<f32> {
+        // The slab test skips a NaN bound (`t0 > lo` is false), which would
+        // make an all-NaN box a hit at 0; the tree never stores one, so only
+        // this public helper checks.
+        if aabb.min.is_nan() || aabb.max.is_nan() {
+            return None;
+        }
         ray_box_entry(&self.test, limit, aabb.min.to_array(), aabb.max.to_array())
     }
 }
