@@ -456,6 +456,26 @@ fn work_starts_and_stops_with_cameras_casters_and_join_members() {
     assert_eq!(diagnostics(&app).joins.runs, 0);
 }
 
+/// Contract S9 through the plugin: the join's pairs are the frame's, kept
+/// until the next run, while the index forgets a despawned entity at once.
+#[test]
+fn a_despawned_entity_leaves_the_index_at_once_and_the_pairs_at_the_next_run() {
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let barrel = app.world_mut().spawn((unit_at(2.0), Barrel)).id();
+    app.update();
+    app.world_mut().despawn(barrel);
+    let barrels = app.world().resource::<SpatialIndex<Barrel>>();
+    assert_eq!(barrels.get(barrel), None);
+    assert!(barrels.is_empty());
+    let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
+    assert_eq!(join.pairs(), [(enemy, barrel)], "the frame's answer");
+    app.update();
+    let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
+    assert!(join.pairs().is_empty());
+}
+
 #[test]
 fn pair_messages_report_starts_and_ends() {
     #[derive(Resource, Default)]
@@ -733,6 +753,9 @@ fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
         let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
         assert!(join.pairs().is_empty());
         assert_eq!(join.error(), Some(SpatialError::InvalidDistance));
+        // Refused, so not computed: not counted as a join that ran.
+        let counted = diagnostics(&app).joins;
+        assert_eq!((counted.runs, counted.queries), (0, 0));
         // Nothing changed, or only the layers: not run (and not reported)
         // again.
         app.update();
@@ -749,6 +772,7 @@ fn a_join_with_an_invalid_distance_has_no_pairs_and_recovers() {
         let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
         assert_eq!(join.pairs(), [(enemy, barrel)]);
         assert_eq!(join.error(), None);
+        assert_eq!(diagnostics(&app).joins.runs, 1);
     }
     // A join that has nothing to pair never runs; its error is still the
     // distance's, as it is now.

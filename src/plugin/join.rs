@@ -73,7 +73,9 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
         }
     }
 
-    /// This frame's pairs, sorted.
+    /// This frame's pairs, sorted, as computed in `PostUpdate`: an entity
+    /// despawned since is still named until the next run ([contract
+    /// S9](crate::contract)), so look the entities up with `Query::get`.
     pub fn pairs(&self) -> &[(Entity, Entity)] {
         &self.pairs
     }
@@ -267,13 +269,18 @@ pub(crate) fn run_join<A: Component, B: Component>(
             &mut join.pairs,
         )
     };
-    if let Err(error) = result {
-        // Only the distance can be wrong: no pairs until it is fixed.
-        log::warn!("spatial join skipped: {error} (distance {})", join.distance);
-        join.pairs.clear();
+    match result {
+        // Only the distance can be wrong: no pairs until it is fixed, and
+        // no join computed to count.
+        Err(error) => {
+            log::warn!("spatial join skipped: {error} (distance {})", join.distance);
+            join.pairs.clear();
+        }
+        Ok(()) => {
+            join.pairs.sort_unstable();
+            sink.add(|d| d.joins.record(1, &mut join.workspace));
+        }
     }
-    join.pairs.sort_unstable();
-    sink.add(|d| d.joins.record(1, &mut join.workspace));
     report_changes(&join.previous, &join.pairs, &mut started, &mut ended);
 }
 
