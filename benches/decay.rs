@@ -39,7 +39,7 @@ use std::time::Instant;
 
 use bevy_rtree::scene::{SceneRng, TownScene, WORLD_MAX};
 use bevy_rtree::{Aabb, ProxyId, QueryWorkspace, RTree, RebuildWork};
-use decay_queries::{FAMILIES, Queries, nodes_visited};
+use decay_queries::{FAMILIES, Queries, Scratch, nodes_visited};
 use glam::Vec3;
 use rebuild_thread::keep_fresh_on_a_thread;
 
@@ -470,6 +470,7 @@ fn run(
 /// nodes, over all the frames and in the worst one.
 fn compare(pattern: Pattern, kept: &[[RTree<u32>; 3]], queries: &Queries) -> (Vec<f64>, f64, f64) {
     let mut ws = [QueryWorkspace::default(), QueryWorkspace::default()];
+    let mut scratch = Scratch::default();
     let mut sums = vec![[0.0f64; 2]; FAMILIES.len()];
     let mut visited = [0u64; 2];
     let mut worst = 0.0f64;
@@ -495,9 +496,9 @@ fn compare(pattern: Pattern, kept: &[[RTree<u32>; 3]], queries: &Queries) -> (Ve
             let mut answers = [Vec::new(), Vec::new()];
             let mut times = [Vec::new(), Vec::new()];
             for which in order {
-                answers[which] = queries.run(f, sets[which], &mut ws[which]).1;
+                answers[which] = queries.run(f, sets[which], &mut ws[which], &mut scratch).1;
                 for _ in 0..3 {
-                    times[which].push(queries.run(f, sets[which], &mut ws[which]).0);
+                    times[which].push(queries.run(f, sets[which], &mut ws[which], &mut scratch).0);
                 }
             }
             assert!(

@@ -18,7 +18,9 @@
 //!   brute_force: every box's distance, the best 8 kept in order.
 //! - `proximity/sphere_10m`: every entity whose box meets the closed sphere
 //!   of radius 10 m around each point. bevy_rtree: `overlapping_sphere_into`;
-//!   parry3d: `Bvh::traverse` with the sphere test at every node; rstar:
+//!   parry3d: `Bvh::traverse` with the cube around the sphere tested first
+//!   at every node (in `f32`, as bevy_rtree's walk does), then the sphere
+//!   test; rstar:
 //!   `locate_within_distance` (its distances are `f32`); brute_force: every
 //!   box's distance.
 //!
@@ -147,9 +149,14 @@ impl SoaCorners {
 
 fn parry_sphere(index: &ParryIndex, p: Vec3, out: &mut Vec<u32>) {
     let limit = (RADIUS as f64) * (RADIUS as f64);
+    let reach = Vec3::splat(RADIUS);
     index.bvh.traverse(|node| {
         let (min, max) = parry_node_box(node);
-        if distance_sq(p, min, max) > limit {
+        // The cube around the sphere first: a gap of at most `RADIUS` never
+        // rounds above it (rounding is monotone), so no box within reach is
+        // pruned, and most nodes are settled without the f64 distance.
+        let in_cube = (p - max).cmple(reach).all() && (min - p).cmple(reach).all();
+        if !in_cube || distance_sq(p, min, max) > limit {
             return TraversalAction::Prune;
         }
         // Leaves hold exact boxes (margin 0): passing the test decides.

@@ -88,7 +88,7 @@ use parry3d::query::Ray as ParryRay;
 use rstar::{AABB as RstarEnvelope, SelectionFunction};
 
 mod common;
-use common::indexes::{BevyIndex, ParryIndex, RstarIndex, grown, parry_node_box};
+use common::indexes::{BevyIndex, ParryIndex, RstarIndex, parry_node_box};
 use common::{RstarBox, bench_answers, bench_list, sorted, to_parry};
 
 /// The scene's seed (the same as the other benchmark's).
@@ -519,19 +519,15 @@ fn rstar_first_hit(tree: &rstar::RTree<RstarBox>, ray: &Ray) -> Option<(u32, f32
     best
 }
 
-/// parry3d's pair test for `leaf_pairs`: the nodes can be within `d` (the
-/// first grown by `d`, rounded outward, overlaps the second).
+/// parry3d's pair test for `leaf_pairs`: the nodes can be within `d` (their
+/// gap on every axis is at most `d`). Rounding is monotone and `d` is an
+/// `f32`, so a gap of at most `d` never rounds above it: the test keeps
+/// every pair within `d`, in two vector subtractions and compares.
 fn parry_within(a: &BvhNode, b: &BvhNode, d: f32) -> bool {
     let (amin, amax) = parry_node_box(a);
     let (bmin, bmax) = parry_node_box(b);
-    let reach = grown(
-        &Aabb {
-            min: amin,
-            max: amax,
-        },
-        d,
-    );
-    reach.min.cmple(bmax).all() && bmin.cmple(reach.max).all()
+    let reach = glam::Vec3::splat(d);
+    (amin - bmax).cmple(reach).all() && (bmin - amax).cmple(reach).all()
 }
 
 /// The cross join as its target counts parry3d: build both `Bvh`s from
@@ -584,38 +580,27 @@ fn rstar_cross_join(
     }
 }
 
-fn rstar_self_join(
-    tree: &rstar::RTree<RstarBox>,
-    boxes: &[Aabb],
-    d: f32,
-    out: &mut Vec<(u32, u32)>,
-) {
-    // The stored boxes are exact, so this join only serves d = 0.
+fn rstar_self_join(tree: &rstar::RTree<RstarBox>, d: f32, out: &mut Vec<(u32, u32)>) {
+    // The stored boxes are exact and rstar's envelope test is closed, so at
+    // d = 0 its candidates are the answer: no second test (bevy_rtree's
+    // join makes none at d = 0 either).
     debug_assert_eq!(d, 0.0);
-    let exact = d as f64;
     for (a, b) in tree.intersection_candidates_with_other_tree(tree) {
         // Every pair comes twice and every item with itself: keep one.
         let (ka, kb) = (a.data, b.data);
-        if ka < kb && within_euclidean(&boxes[ka as usize], &boxes[kb as usize], exact) {
+        if ka < kb {
             out.push((ka, kb));
         }
     }
 }
 
-fn parry_self_join(
-    bvh: &Bvh,
-    workspace: &mut BvhWorkspace,
-    boxes: &[Aabb],
-    d: f32,
-    out: &mut Vec<(u32, u32)>,
-) {
-    // Leaves are exact (margin 0), so leaf overlap is the d = 0 candidate set.
+fn parry_self_join(bvh: &Bvh, workspace: &mut BvhWorkspace, d: f32, out: &mut Vec<(u32, u32)>) {
+    // Leaves are exact (margin 0) and parry's overlap test is closed, so at
+    // d = 0 the leaf pairs are the answer: no second test (bevy_rtree's
+    // join makes none at d = 0 either).
     debug_assert_eq!(d, 0.0);
-    let exact = d as f64;
     bvh.traverse_bvtt_single_tree::<false>(workspace, &mut |a, b| {
-        if within_euclidean(&boxes[a as usize], &boxes[b as usize], exact) {
-            out.push((a.min(b), a.max(b)));
-        }
+        out.push((a.min(b), a.max(b)));
     });
 }
 
@@ -956,13 +941,12 @@ fn check(c: &Contenders) {
     parry_self_join(
         &c.parry.bvh,
         &mut BvhWorkspace::default(),
-        boxes,
         SELF_JOIN_DISTANCE,
         &mut got,
     );
     assert_same("parry3d", what, &sorted(got), &want);
     let mut got = Vec::new();
-    rstar_self_join(&c.rstar.tree, boxes, SELF_JOIN_DISTANCE, &mut got);
+    rstar_self_join(&c.rstar.tree, SELF_JOIN_DISTANCE, &mut got);
     assert_same("rstar", what, &sorted(got), &want);
     let mut got = Vec::new();
     Sweep::default().self_join(boxes, SELF_JOIN_DISTANCE, &mut got);
@@ -1097,10 +1081,10 @@ fn bench_self_join(cr: &mut Criterion, c: &Contenders) {
     });
     let mut ws = BvhWorkspace::default();
     bench_list(&mut group, "parry3d", |out| {
-        parry_self_join(&c.parry.bvh, &mut ws, &c.boxes, d, out);
+        parry_self_join(&c.parry.bvh, &mut ws, d, out);
     });
     bench_list(&mut group, "rstar", |out| {
-        rstar_self_join(&c.rstar.tree, &c.boxes, d, out);
+        rstar_self_join(&c.rstar.tree, d, out);
     });
     let mut sweep = Sweep::default();
     bench_list(&mut group, "brute_force", |out| {
@@ -1270,7 +1254,7 @@ fn paired_ratios(c: &Contenders) {
         },
         || {
             peer_out.clear();
-            parry_self_join(&c.parry.bvh, &mut peer_ws, &c.boxes, d, &mut peer_out);
+            parry_self_join(&c.parry.bvh, &mut peer_ws, d, &mut peer_out);
             peer_out.len()
         },
     );
@@ -1377,7 +1361,7 @@ fn cold_ratios(c: &Contenders) {
         },
         |_| {
             peer_pairs.clear();
-            parry_self_join(&c.parry.bvh, &mut peer_ws, &c.boxes, d, &mut peer_pairs);
+            parry_self_join(&c.parry.bvh, &mut peer_ws, d, &mut peer_pairs);
             peer_pairs.len()
         },
     );

@@ -36,6 +36,13 @@ pub struct StepTimer {
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct StepStart;
 
+/// Where the camera step's timer stops: after both sides' culling, before
+/// what follows it in `PostUpdate`, so that neither side's window takes in
+/// a system the other's leaves out (the executor may otherwise order them
+/// differently in the two Apps).
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct StepStop;
+
 pub fn start_step(mut timer: ResMut<StepTimer>) {
     timer.start = Some(Instant::now());
 }
@@ -176,7 +183,8 @@ pub fn app(ours: bool, lights: bool) -> App {
                     start_step.in_set(StepStart),
                     stop_step
                         .after(VisibilitySystems::CheckVisibility)
-                        .after(SpatialIndexSystems::Maintain),
+                        .after(SpatialIndexSystems::Maintain)
+                        .in_set(StepStop),
                 ),
             );
     } else {
@@ -192,10 +200,21 @@ pub fn app(ours: bool, lights: bool) -> App {
             PostUpdate,
             (
                 start_step.in_set(StepStart),
-                stop_step.after(VisibilitySystems::CheckVisibility),
+                stop_step
+                    .after(VisibilitySystems::CheckVisibility)
+                    .in_set(StepStop),
             ),
         );
     }
+    app.configure_sets(
+        PostUpdate,
+        StepStop.before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+    );
+    #[cfg(feature = "bevy_light")]
+    app.configure_sets(
+        PostUpdate,
+        StepStop.before(bevy_light::SimulationLightSystems::CheckLightVisibility),
+    );
     app.finish();
     app.cleanup();
     app

@@ -83,8 +83,8 @@ impl<K: Copy + Ord, const W: usize> RebuildWork<K, W> {
 impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// Takes the work of the rebuild just started out of the tree, so that
     /// it runs on another thread ([`RebuildWork::run`]); `None` if no
-    /// rebuild is under way or it has begun to cut its first level into
-    /// more than one part (the work then goes on in
+    /// rebuild is under way or its steps have left more than one part of
+    /// its first level still to cut (the work then goes on in
     /// [`RTree::step_rebuild`]; take it straight after
     /// [`RTree::start_rebuild`] to be sure of it). Until the work comes back
     /// ([`RTree::finish_rebuild_work`]) the tree answers and changes as
