@@ -68,6 +68,36 @@ fn world_boxes_follow_propagated_transforms() {
     app.world().resource::<SpatialIndex>().validate().unwrap();
 }
 
+/// `LocalBounds` leaves behind the `SpatialBounds` it required, as Bevy
+/// leaves required components: the entity stays at its last world box,
+/// which no longer follows the transform, until that box goes too.
+#[test]
+fn removing_local_bounds_leaves_the_last_world_box_in_place() {
+    let mut app = app();
+    let e = app
+        .world_mut()
+        .spawn((Transform::from_xyz(10.0, 0.0, 0.0), LocalBounds(local())))
+        .id();
+    app.update();
+    let index = |app: &App| app.world().resource::<SpatialIndex>().get(e);
+    let last = index(&app).unwrap();
+    assert_eq!(last.min.x, 9.0);
+    app.world_mut().entity_mut(e).remove::<LocalBounds>();
+    app.world_mut()
+        .get_mut::<Transform>(e)
+        .unwrap()
+        .translation
+        .x = 100.0;
+    app.update();
+    assert_eq!(index(&app), Some(last), "fixed where it was");
+    app.world_mut().entity_mut(e).remove::<SpatialBounds>();
+    assert_eq!(index(&app), None);
+    // Put back, it follows the transform again.
+    app.world_mut().entity_mut(e).insert(LocalBounds(local()));
+    app.update();
+    assert_eq!(index(&app).unwrap().min.x, 99.0);
+}
+
 #[test]
 fn unusable_transforms_take_the_entity_out_and_are_counted() {
     let mut app = app();

@@ -25,6 +25,12 @@ use crate::geometry::Aabb;
 /// gives no world box: the entity leaves the index, is reported once and
 /// counted, until its transform is usable again.
 ///
+/// `LocalBounds` requires the [`SpatialBounds`] it writes. Removing it (or
+/// the `GlobalTransform`) leaves that component, as Bevy leaves required
+/// components: the entity stays indexed at its last world box, which no
+/// longer follows the transform. Remove `SpatialBounds` too to take the
+/// entity out of the index.
+///
 /// ```
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::prelude::*;
