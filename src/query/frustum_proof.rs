@@ -26,6 +26,10 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws: &mut QueryWorkspace,
         mut visit: impl FnMut(K, bool),
     ) {
+        debug_assert!(
+            tight_within(tight, loose),
+            "`tight` must lie within `loose` plane by plane"
+        );
         let loose = PreparedView::new(loose, CullMode::Conservative);
         let tight = PreparedView::new(tight, CullMode::Conservative);
         if self.is_empty() {
@@ -108,6 +112,19 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         ws.stack = stack;
         ws.leaves = leaves;
     }
+}
+
+/// The precondition of [`RTree::visit_visible_proving`]: the same eye, and
+/// each plane of `tight` the plane of `loose` with the same normal and an
+/// offset no larger (an inactive plane of `tight` only where `loose`'s is
+/// inactive too), so that `tight` contains nothing `loose` culls.
+fn tight_within(tight: &Frustum, loose: &Frustum) -> bool {
+    tight.eye() == loose.eye()
+        && tight
+            .planes()
+            .iter()
+            .zip(loose.planes())
+            .all(|(t, l)| t.normal == l.normal && t.offset <= l.offset)
 }
 
 #[cfg(test)]
