@@ -140,6 +140,11 @@ fn pairs(a: Aabb, b: Aabb, d: f32, mode: JoinMode) -> bool {
     assert_eq!(got, oracle.self_join(d, mode).unwrap());
     let (wide, _) = pair_world::<16>(a, b);
     assert_eq!(wide.self_join(d, mode).unwrap(), got);
+    // Alone, in a tree whose root is its leaf.
+    let (alone, alone_oracle, _) = build::<16>(&[a, b], 0);
+    let two = alone.self_join(d, mode).unwrap();
+    assert_eq!(two, alone_oracle.self_join(d, mode).unwrap());
+    assert_eq!(two.contains(&(0, 1)), got.contains(&(0, 1)));
     got.contains(&(0, 1))
 }
 
@@ -302,13 +307,14 @@ fn the_moved_join_checks_everything_before_reporting() {
     let boxes: Vec<Aabb> = (0..50)
         .map(|i| common::aabb([i as f32 * 0.5, 0.0, 0.0], [i as f32 * 0.5 + 1.0, 1.0, 1.0]))
         .collect();
-    let (mut tree, _, ids) = build::<16>(&boxes, 0);
+    let (mut tree, mut oracle, ids) = build::<16>(&boxes, 0);
     let stale = ids[49];
     tree.remove(stale).unwrap();
+    oracle.remove(49);
     let mut ws = QueryWorkspace::default();
-    let mut reported = 0;
-    let mut count = |_, _| {
-        reported += 1;
+    let mut reported = Vec::new();
+    let mut count = |a, b| {
+        reported.push((a, b));
         std::ops::ControlFlow::Continue(())
     };
     let cases: [(&[ProxyId], f32, SpatialError); 4] = [
@@ -330,13 +336,20 @@ fn the_moved_join_checks_everything_before_reporting() {
             );
         }
     }
-    // The good handles alone do have pairs to report.
+    // The good handles alone do have pairs to report: those of the
+    // oracle's self join that involve entry 0 or 1 ((0, 1) and (1, 2)
+    // overlap, (0, 2) and (1, 3) touch).
     tree.visit_self_join_moved(&ids[..2], 0.0, JoinMode::Euclidean, &mut ws, &mut count)
         .unwrap();
-    assert_eq!(
-        reported, 4,
-        "(0, 1) and (1, 2) overlap, (0, 2) and (1, 3) touch"
-    );
+    reported.sort_unstable();
+    let want: Vec<(u32, u32)> = oracle
+        .self_join(0.0, JoinMode::Euclidean)
+        .unwrap()
+        .into_iter()
+        .filter(|&(a, b)| a < 2 || b < 2)
+        .collect();
+    assert_eq!(want.len(), 4);
+    assert_eq!(reported, want, "nothing before, these now");
 }
 
 /// A cross join of trees of different heights: while the taller one
@@ -434,4 +447,36 @@ fn joins_stop_where_their_visitor_breaks() {
         .unwrap();
         check(seen, stop, &cross_pairs, "cross join");
     }
+}
+
+/// Contract (the S2/S8 refinement): the tree names entries by handle, so
+/// two entries that share a key are two entries; a self join pairs them as
+/// `(k, k)`, and never pairs an entry with itself.
+#[test]
+fn a_self_join_pairs_two_entries_that_share_a_key() {
+    let entries = [
+        (7u32, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+        (7, [0.5, 0.5, 0.5], [2.0, 2.0, 2.0]),
+        (3, [10.0, 0.0, 0.0], [11.0, 1.0, 1.0]),
+        (7, [20.0, 0.0, 0.0], [21.0, 1.0, 1.0]),
+    ];
+    let mut tree = RTree::<u32>::new();
+    let mut oracle = BruteForce::default();
+    for (key, min, max) in entries {
+        tree.insert(key, common::aabb(min, max)).unwrap();
+        oracle.insert(key, common::aabb(min, max));
+    }
+    tree.validate().unwrap();
+    for distance in [0.0, 0.5, 9.0, 30.0] {
+        for mode in MODES {
+            let want = oracle.self_join(distance, mode).unwrap();
+            assert_eq!(
+                tree.self_join(distance, mode).unwrap(),
+                want,
+                "{distance} {mode:?}"
+            );
+        }
+    }
+    // The two overlapping entries of key 7, once; nothing with itself.
+    assert_eq!(tree.self_join(0.0, JoinMode::Euclidean).unwrap(), [(7, 7)]);
 }

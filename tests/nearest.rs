@@ -333,7 +333,9 @@ fn k_larger_than_len_returns_every_entry_sorted() {
         assert!(all.windows(2).all(|w| w[0].distance_sq < w[1].distance_sq));
         assert_eq!(all, oracle.nearest(p, k, None).unwrap());
         // A maximum distance still cuts: x = 0, 3, 6 are within 7 of x = -1.
-        assert_eq!(tree.nearest(p, k, Some(7.0)).unwrap().len(), 3);
+        let cut = tree.nearest(p, k, Some(7.0)).unwrap();
+        assert_eq!(cut.len(), 3);
+        assert_eq!(cut, oracle.nearest(p, k, Some(7.0)).unwrap());
     }
 }
 

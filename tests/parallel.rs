@@ -221,10 +221,12 @@ fn small_batches_run_on_the_calling_thread() {
     tree.par_self_join_into(0.5, JoinMode::Euclidean, &mut pws, &mut pairs)
         .unwrap();
     assert_eq!(pws.last_split(), 1);
-    assert_eq!(
-        pairs.len(),
-        tree.self_join(0.5, JoinMode::Euclidean).unwrap().len()
-    );
+    let mut oracle = BruteForce::default();
+    for (_, key, aabb) in tree.iter() {
+        oracle.insert(key, aabb);
+    }
+    pairs.sort_unstable();
+    assert_eq!(pairs, oracle.self_join(0.5, JoinMode::Euclidean).unwrap());
 }
 
 #[test]

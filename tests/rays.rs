@@ -237,6 +237,9 @@ fn expect(ray: Ray, unit_t: Option<f32>) {
     check_rays(&narrow, &oracle, &[ray]);
     let (wide, oracle) = unit_world::<16>(&[]);
     check_rays(&wide, &oracle, &[ray]);
+    // Alone, in a tree whose root is its leaf.
+    let (alone, oracle) = build::<16>(&[common::aabb([0.0; 3], [1.0; 3])]);
+    check_rays(&alone, &oracle, &[ray]);
 }
 
 fn ray(o: [f32; 3], d: [f32; 3], max_t: f32) -> Ray {

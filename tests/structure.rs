@@ -66,7 +66,7 @@ fn ten_thousand_identical_boxes() {
         .map(|i| tree.insert(i, same).unwrap())
         .collect();
     tree.validate().unwrap();
-    assert_eq!(tree.overlapping(&same).len(), 10_000);
+    assert_eq!(tree.overlapping(&same), (0..10_000u32).collect::<Vec<_>>());
     assert!(
         tree.height() <= 2 * optimal_height(10_000, RTree::<u32>::WIDTH),
         "height {}",
@@ -96,12 +96,14 @@ fn sorted_line_and_grid_keep_a_low_tree() {
     );
 
     let mut grid = RTree::new();
+    let mut grid_oracle = BruteForce::default();
     let mut key = 0u32;
     for x in 0..30 {
         for y in 0..30 {
             for z in 0..30 {
-                grid.insert(key, unit_at(Vec3::new(x as f32, y as f32, z as f32) * 1.5))
-                    .unwrap();
+                let cell = unit_at(Vec3::new(x as f32, y as f32, z as f32) * 1.5);
+                grid.insert(key, cell).unwrap();
+                grid_oracle.insert(key, cell);
                 key += 1;
             }
         }
@@ -112,9 +114,26 @@ fn sorted_line_and_grid_keep_a_low_tree() {
         "grid height {}",
         grid.height()
     );
-    // One cell of the grid and its touching neighbours.
-    let probe = Aabb::new(Vec3::splat(15.0), Vec3::splat(16.0)).unwrap();
-    assert_eq!(grid.overlapping(&probe).len(), 1);
+    // Cells are 1 m wide, 1.5 m apart: a probe inside one cell, one that
+    // touches the faces of eight, and one across a block of them.
+    let probes = [
+        Aabb::new(Vec3::splat(15.0), Vec3::splat(16.0)).unwrap(),
+        Aabb::new(Vec3::splat(16.0), Vec3::splat(16.5)).unwrap(),
+        Aabb::new(Vec3::splat(3.2), Vec3::splat(9.1)).unwrap(),
+    ];
+    for probe in probes {
+        let want = grid_oracle.overlapping(&probe);
+        assert!(!want.is_empty());
+        assert_eq!(grid.overlapping(&probe), want, "{probe:?}");
+    }
+    let mut line_oracle = BruteForce::default();
+    for (_, key, aabb) in line.iter() {
+        line_oracle.insert(key, aabb);
+    }
+    let stretch = Aabb::new(Vec3::new(999.0, 0.5, 0.5), Vec3::new(1_100.0, 0.5, 0.5)).unwrap();
+    let want = line_oracle.overlapping(&stretch);
+    assert!(want.len() > 40, "the stretch crosses about fifty boxes");
+    assert_eq!(line.overlapping(&stretch), want);
 }
 
 #[test]
