@@ -32,6 +32,9 @@ use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use bevy_transform::prelude::*;
 use glam::{Quat, Vec3, Vec3A};
 
+/// A visibility class of the app's own, beside Bevy's `Mesh3d`.
+struct AppClass;
+
 /// Bevy's compute pool with three threads (where bevy_tasks has threads:
 /// features `parallel` or `multi_threaded`), so that the plugin's parallel
 /// paths run even on a machine of two cores.
@@ -106,12 +109,14 @@ impl Twins {
                     entity.insert(VisibilityClass([TypeId::of::<Mesh3d>()].into()));
                 }
                 1 => {
+                    // A bounding sphere, and a class of the app's own: each
+                    // camera's lists must have the keys Bevy gives them.
                     entity.insert((
                         Sphere {
                             center: Vec3A::ZERO,
                             radius: rng.range(0.1, 3.0),
                         },
-                        VisibilityClass([TypeId::of::<Mesh3d>()].into()),
+                        VisibilityClass([TypeId::of::<AppClass>()].into()),
                     ));
                 }
                 _ => {
@@ -298,20 +303,35 @@ impl Twins {
                 .iter()
                 .map(|cam| {
                     let lists = app.world().get::<VisibleEntities>(cam[side]).unwrap();
-                    let list = lists.get(TypeId::of::<Mesh3d>());
-                    assert!(
-                        list.is_sorted(),
-                        "sorted by Entity, as Bevy's diffing needs"
-                    );
-                    let mut spawned: Vec<usize> = list.iter().map(|e| index[e]).collect();
-                    spawned.sort_unstable();
-                    spawned
+                    // Which classes have a list (extraction sees only
+                    // those), then each class's entities.
+                    let mut classes: Vec<TypeId> = lists.entities.keys().copied().collect();
+                    classes.sort_unstable();
+                    let listed = [TypeId::of::<Mesh3d>(), TypeId::of::<AppClass>()].map(|class| {
+                        let list = lists.get(class);
+                        assert!(
+                            list.is_sorted(),
+                            "sorted by Entity, as Bevy's diffing needs"
+                        );
+                        let mut spawned: Vec<usize> = list.iter().map(|e| index[e]).collect();
+                        spawned.sort_unstable();
+                        spawned
+                    });
+                    (classes, listed)
                 })
                 .collect::<Vec<_>>()
         };
         let (bevy_lists, our_lists) = (order(&self.bevy, 0), order(&self.ours, 1));
         for (c, (b, o)) in bevy_lists.iter().zip(&our_lists).enumerate() {
-            assert_eq!(b, o, "frame {frame}: camera {c}'s visible entities");
+            assert_eq!(b.1, o.1, "frame {frame}: camera {c}'s visible entities");
+            // In the frame a class is first seen, Bevy gives a list for it
+            // only to the cameras its query visits after the first that saw
+            // one, an order the twin worlds need not share (their cameras'
+            // archetypes can differ); from the next frame on every active
+            // camera has one.
+            if frame > 0 {
+                assert_eq!(b.0, o.0, "frame {frame}: camera {c}'s classes");
+            }
         }
         visible
     }
@@ -895,4 +915,61 @@ fn a_renderables_layer_before_the_plugin_is_refused() {
     app.add_plugins((TransformPlugin, CameraPlugin, SpatialIndexPlugin::default()))
         .add_spatial_join::<Renderable, Renderable>(1.0, JoinMode::Euclidean)
         .add_plugins(BevyVisibilityPlugin);
+}
+
+/// Every active camera has a list for every visibility class seen so far,
+/// as Bevy's queues give one, empty or not: a camera that sees only
+/// layer 1, beside two that see entities of the app's own class on
+/// layer 0, has an empty list for that class from the next frame on
+/// (extraction sees only the classes a camera has a list for).
+#[test]
+fn a_camera_has_a_list_for_every_class_seen_so_far() {
+    let mut twins = Twins::new(41);
+    for (i, layer) in [0, 1, 0].into_iter().enumerate() {
+        let pair = twins.both(|world, _, _| {
+            let mut camera = world.spawn((
+                Camera3d::default(),
+                Transform::from_xyz(i as f32 * 5.0, 0.0, 10.0),
+            ));
+            if layer == 1 {
+                camera.insert(RenderLayers::layer(1));
+            }
+            camera.id()
+        });
+        twins.cameras.push(pair);
+    }
+    let pair = twins.both(|world, _, _| {
+        world
+            .spawn((
+                Transform::from_xyz(5.0, 0.0, 0.0),
+                Visibility::default(),
+                Sphere {
+                    center: Vec3A::ZERO,
+                    radius: 1.0,
+                },
+                VisibilityClass([TypeId::of::<AppClass>()].into()),
+            ))
+            .id()
+    });
+    twins.entities.push(pair);
+    for frame in 0..3 {
+        twins.update();
+        twins.check(frame);
+    }
+    let classes = |app: &App, camera: Entity| {
+        let lists = app.world().get::<VisibleEntities>(camera).unwrap();
+        lists.entities.contains_key(&TypeId::of::<AppClass>())
+    };
+    let [_, layer_1, _] = twins.cameras.clone().try_into().unwrap();
+    assert!(
+        classes(&twins.bevy, layer_1[0]),
+        "Bevy's lists have the key"
+    );
+    assert!(classes(&twins.ours, layer_1[1]));
+    let ours = twins
+        .ours
+        .world()
+        .get::<VisibleEntities>(layer_1[1])
+        .unwrap();
+    assert!(ours.get(TypeId::of::<AppClass>()).is_empty());
 }

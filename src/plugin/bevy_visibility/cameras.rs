@@ -124,6 +124,11 @@ pub(super) struct Scratch {
     rows: RowScratch,
     /// Working space of the candidates' sort.
     sort_spare: Vec<(Entity, bool)>,
+    /// Every visibility class any view has listed an entity of, so far:
+    /// Bevy's per-thread queues keep a key for each, and each active camera
+    /// gets a list for each, empty or not (extraction sees only the
+    /// classes a camera has a list for).
+    classes: Vec<TypeId>,
 }
 
 /// Replaces Bevy's `check_visibility_cpu_culling`, in
@@ -244,7 +249,17 @@ pub(super) fn check_visibility_from_index(
         }
     }
     let culled_views = views.iter().filter(|v| !v.sight.no_culling).count();
+    let classes = &mut scratch.classes;
+    // In Bevy's order of the cameras (the query's, as `views` was built):
+    // Bevy drains its queues after each camera, so a camera gets a list for
+    // every class seen so far, by it, by the cameras before it this frame,
+    // or in any earlier frame.
     for view in &mut views {
+        for (class, list) in &view.visible.0 {
+            if !list.is_empty() && !classes.contains(class) {
+                classes.push(*class);
+            }
+        }
         let Ok((_, mut visible, ..)) = cameras.get_mut(view.sight.camera) else {
             continue;
         };
@@ -255,6 +270,9 @@ pub(super) fn check_visibility_from_index(
             // storage order gives one per thread's batch.
             list.sort();
             std::mem::swap(visible.get_mut(*class), list);
+        }
+        for class in classes.iter() {
+            visible.get_mut(*class);
         }
     }
     if culled_views > 0 {
