@@ -116,8 +116,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
 /// The precondition of [`RTree::visit_visible_proving`]: the same eye, and
 /// each plane of `tight` the plane of `loose` with the same normal and an
-/// offset no larger (an inactive plane of `tight` only where `loose`'s is
-/// inactive too), so that `tight` contains nothing `loose` culls.
+/// offset no larger (so a plane is inactive in both or in neither), so
+/// that `tight` contains nothing `loose` culls.
 fn tight_within(tight: &Frustum, loose: &Frustum) -> bool {
     tight.eye() == loose.eye()
         && tight
@@ -130,6 +130,29 @@ fn tight_within(tight: &Frustum, loose: &Frustum) -> bool {
 #[cfg(test)]
 mod tests {
     use glam::{Quat, Vec3};
+
+    /// A tight frustum that is not within the loose one is refused in
+    /// debug builds: here the loose one sees only x > 5, the tight one
+    /// everything.
+    #[test]
+    #[cfg(debug_assertions)]
+    #[should_panic(expected = "must lie within")]
+    fn a_tight_frustum_outside_the_loose_one_is_refused() {
+        let tree = crate::RTree::<u32>::new();
+        let only_beyond_5 = HalfSpace {
+            normal: Vec3::X,
+            offset: -5.0,
+        };
+        let i = HalfSpace::INACTIVE;
+        let loose = Frustum::new(Vec3::ZERO, [only_beyond_5, i, i, i, i, i]).unwrap();
+        let everything = Frustum::new(Vec3::ZERO, [i; 6]).unwrap();
+        tree.visit_visible_proving(
+            &loose,
+            &everything,
+            &mut QueryWorkspace::default(),
+            |_, _| {},
+        );
+    }
 
     use crate::geometry::predicates::{frustum_conservative, frustum_contains};
     use crate::geometry::{Aabb, Frustum, HalfSpace};
