@@ -456,24 +456,35 @@ fn work_starts_and_stops_with_cameras_casters_and_join_members() {
     assert_eq!(diagnostics(&app).joins.runs, 0);
 }
 
-/// Contract S9 through the plugin: the join's pairs are the frame's, kept
-/// until the next run, while the index forgets a despawned entity at once.
+/// Contract S9 through the plugin: the join's pairs and a caster's hits
+/// are the frame's, kept until their next run, while the index forgets a
+/// despawned entity at once.
 #[test]
-fn a_despawned_entity_leaves_the_index_at_once_and_the_pairs_at_the_next_run() {
+fn a_despawned_entity_leaves_the_index_at_once_and_the_kept_answers_at_the_next_run() {
     let mut app = app();
     app.add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
     let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
     let barrel = app.world_mut().spawn((unit_at(2.0), Barrel)).id();
+    let ray = Ray::new(Vec3::new(10.0, 0.5, 0.5), Vec3::NEG_X, 100.0).unwrap();
+    let caster = app
+        .world_mut()
+        .spawn(RayCaster::new(ray, RayMode::First))
+        .id();
     app.update();
+    let first = |app: &App| app.world().get::<RayCasterHits>(caster).unwrap().first();
+    assert_eq!(first(&app).map(|h| h.key), Some(barrel));
     app.world_mut().despawn(barrel);
     let barrels = app.world().resource::<SpatialIndex<Barrel>>();
     assert_eq!(barrels.get(barrel), None);
     assert!(barrels.is_empty());
+    assert_eq!(app.world().resource::<SpatialIndex>().get(barrel), None);
     let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
     assert_eq!(join.pairs(), [(enemy, barrel)], "the frame's answer");
+    assert_eq!(first(&app).map(|h| h.key), Some(barrel), "the frame's hit");
     app.update();
     let join = app.world().resource::<SpatialJoin<Enemy, Barrel>>();
     assert!(join.pairs().is_empty());
+    assert_eq!(first(&app).map(|h| h.key), Some(enemy));
 }
 
 #[test]

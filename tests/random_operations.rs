@@ -365,46 +365,51 @@ impl Model {
 
     /// The batched, filtered, cross-tree and (feature `parallel`) parallel
     /// forms of the queries on the tree as the mutations left it, against
-    /// the oracle: rays sharing an origin and one from elsewhere, a filter
-    /// that drops every third key, the k nearest past the small-k path, and
-    /// a cross join with a fresh small tree on either side.
+    /// the oracle: a batch of rays sharing an origin (enough for the batch
+    /// to answer them from one point query at that origin, often the middle
+    /// of an entry) and one from elsewhere, now and then enough rays for the
+    /// batched walk; a filter that drops every third key; the k nearest past
+    /// the small-k path; a cross join with a fresh small tree on either side.
     fn check_batches_and_filters(&mut self, point: Vec3, distance: f32) {
         let tree = &self.tree;
         let ws = &mut QueryWorkspace::default();
+        // 9 rays share an origin (the batch takes 8 or more to answer from
+        // one point query); 1,100 take the batched walk (1,024 or more).
+        let sharing = if self.rng.below(16) == 0 { 1_100 } else { 9 };
         let mut rays = Vec::new();
-        for _ in 0..3 {
+        for _ in 0..sharing {
             let target = random_box(&mut self.rng, self.profile);
             let towards = ((target.min + target.max) * 0.5 - point).as_dvec3();
             let dir = (towards / towards.length()).as_vec3();
-            rays.extend(Ray::new(
-                point,
-                dir,
-                [1e3, f32::INFINITY][self.rng.below(2)],
-            ));
+            let reach = [1e3, f32::INFINITY][self.rng.below(2)];
+            rays.extend(Ray::new(point, dir, reach));
         }
         let other = random_box(&mut self.rng, self.profile);
         rays.extend(Ray::new(other.min, self.rng.direction(), f32::INFINITY));
-        let modes = [RayMode::First, RayMode::All { limit: None }];
-        for mode in modes {
+        #[cfg(feature = "parallel")]
+        let mut pws = bevy_rtree::ParallelWorkspace::default()
+            .with_min_rays_per_task(1)
+            .with_min_entries_to_split(0)
+            .with_min_view_entries_to_split(0);
+        for mode in [RayMode::First, RayMode::All { limit: None }] {
             let mut batch = RayResults::default();
             tree.cast_rays(&rays, mode, ws, &mut batch);
             assert_same_as_oracle(&batch, &rays, mode, &self.oracle);
             #[cfg(feature = "parallel")]
             {
-                let mut pws = bevy_rtree::ParallelWorkspace::default()
-                    .with_min_rays_per_task(1)
-                    .with_min_entries_to_split(0)
-                    .with_min_view_entries_to_split(0);
                 let mut split = RayResults::default();
                 tree.par_cast_rays(&rays, mode, &mut pws, &mut split);
                 assert_same_as_oracle(&split, &rays, mode, &self.oracle);
-                let mut pairs = Vec::new();
-                tree.par_self_join_into(distance, JoinMode::Euclidean, &mut pws, &mut pairs)
-                    .unwrap();
-                pairs.sort_unstable();
-                let all = self.oracle.self_join(distance, JoinMode::Euclidean);
-                assert_eq!(Ok(pairs), all, "parallel self join at {distance}");
             }
+        }
+        #[cfg(feature = "parallel")]
+        {
+            let mut pairs = Vec::new();
+            tree.par_self_join_into(distance, JoinMode::Euclidean, &mut pws, &mut pairs)
+                .unwrap();
+            pairs.sort_unstable();
+            let all = self.oracle.self_join(distance, JoinMode::Euclidean);
+            assert_eq!(Ok(pairs), all, "parallel self join at {distance}");
         }
 
         let allow = |key: u32| !key.is_multiple_of(3);
