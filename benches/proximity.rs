@@ -153,8 +153,10 @@ fn parry_sphere(index: &ParryIndex, p: Vec3, out: &mut Vec<u32>) {
     index.bvh.traverse(|node| {
         let (min, max) = parry_node_box(node);
         // The cube around the sphere first: a gap of at most `RADIUS` never
-        // rounds above it (rounding is monotone), so no box within reach is
-        // pruned, and most nodes are settled without the f64 distance.
+        // rounds above it (rounding is monotone), nor does one that the f64
+        // distance accepts just above it (within 2^-49 of it, where the
+        // next f32 is 2^-24 away), so no box within reach is pruned, and
+        // most nodes are settled without the f64 distance.
         let in_cube = (p - max).cmple(reach).all() && (min - p).cmple(reach).all();
         if !in_cube || distance_sq(p, min, max) > limit {
             return TraversalAction::Prune;

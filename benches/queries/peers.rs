@@ -234,8 +234,11 @@ pub(crate) fn rstar_first_hit(tree: &rstar::RTree<RstarBox>, ray: &Ray) -> Optio
 
 /// parry3d's pair test for `leaf_pairs`: the nodes can be within `d` (their
 /// gap on every axis is at most `d`). Rounding is monotone and `d` is an
-/// `f32`, so a gap of at most `d` never rounds above it: the test keeps
-/// every pair within `d`, in two vector subtractions and compares.
+/// `f32`, so a gap of at most `d` never rounds above it; the exact test
+/// also accepts gaps above `d` by at most about 2^-49 of it, and those
+/// round to `d` too (the next `f32` is 2^-24 of it away). So the test keeps
+/// every pair the exact test accepts, in two vector subtractions and
+/// compares.
 pub(crate) fn parry_within(a: &BvhNode, b: &BvhNode, d: f32) -> bool {
     let (amin, amax) = parry_node_box(a);
     let (bmin, bmax) = parry_node_box(b);
