@@ -1,6 +1,9 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+#[cfg(feature = "plugin")]
+pub mod plugin_scene;
+
 use bevy_rtree::scene::TownScene;
 use bevy_rtree::{Aabb, ProxyId, RTree};
 use glam::Vec3;
