@@ -973,3 +973,40 @@ fn a_camera_has_a_list_for_every_class_seen_so_far() {
         .unwrap();
     assert!(ours.get(TypeId::of::<AppClass>()).is_empty());
 }
+
+/// A disabling component registered by a `Startup` system, the latest point
+/// at which Bevy's own culling still leaves its entities out (its systems'
+/// queries are set up at their first run): the index's side leaves them
+/// out too, on both ways of deciding candidates.
+#[test]
+fn a_disabling_component_registered_at_startup_is_respected() {
+    #[derive(Component)]
+    struct Hidden;
+    for (seed, spread) in [(51, 100.0), (52, 2_000.0)] {
+        let mut twins = Twins::new(seed);
+        twins.spread = spread;
+        for app in [&mut twins.bevy, &mut twins.ours] {
+            app.add_systems(Startup, |world: &mut World| {
+                world.register_disabling_component::<Hidden>();
+            });
+        }
+        for _ in 0..2_000 {
+            twins.spawn_entity();
+        }
+        for kind in [0, 2] {
+            twins.spawn_camera(kind);
+        }
+        for pair in twins.entities.clone().iter().step_by(3) {
+            twins.both(|world, _, side| {
+                world.entity_mut(pair[side]).insert(Hidden);
+            });
+        }
+        let mut seen = 0;
+        for frame in 0..5 {
+            twins.update();
+            seen += twins.check(frame);
+            twins.mutate();
+        }
+        assert!(seen > 100, "seed {seed}: {seen} seen");
+    }
+}

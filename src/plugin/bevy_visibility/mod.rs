@@ -79,7 +79,7 @@ pub struct Renderable;
 /// Serves Bevy's camera visibility from the index: add it with (after)
 /// [`SpatialIndexPlugin`](super::SpatialIndexPlugin), in an app with Bevy's `CameraPlugin` (part of
 /// `DefaultPlugins`, before or after this plugin). Bevy's systems it
-/// replaces are taken out as the app starts (in `PreStartup`).
+/// replaces are taken out as the first frame starts (in `First`, once).
 ///
 /// It indexes Bevy's renderables in the layer [`Renderable`] and replaces
 /// Bevy's `check_visibility_cpu_culling` with a system in the same set,
@@ -232,7 +232,7 @@ impl Plugin for BevyVisibilityPlugin {
                         // visibility ranges.
                         .after(check_visibility_ranges)
                         // Ordered after Bevy's own until that is taken out
-                        // as the app starts: taking it out initializes the
+                        // in the first frame: taking it out initializes the
                         // schedule, which an app that makes ambiguities
                         // errors would otherwise refuse.
                         .after(check_visibility_cpu_culling),
@@ -254,14 +254,18 @@ impl Plugin for BevyVisibilityPlugin {
         }
         sync::add_observers(app, handles_kept);
         super::register_layer_queries::<Renderable>(app, &config);
-        // Bevy's systems this one replaces are taken out as the app starts,
-        // not here: taking a system out initializes its schedule, and every
-        // query of a schedule initialized now would miss a disabling
-        // component that a plugin added after this one registers (Bevy
-        // asks for them before the app starts, which this would bring
-        // forward). At the start, Bevy's plugins are there whether they
-        // were added before or after this one.
-        app.add_systems(PreStartup, take_out_bevy_systems);
+        // Bevy's systems this one replaces are taken out at the start of
+        // the first frame, not here nor in `PreStartup`: taking a system out
+        // initializes its schedule, and every query of a schedule
+        // initialized then would miss a disabling component registered
+        // after it (by a later plugin, or by a `Startup` system), which
+        // Bevy's own systems, set up at their first run, respect. By the
+        // first frame, Bevy's plugins are there whether they were added
+        // before or after this one, and the startup schedules have run.
+        app.add_systems(
+            First,
+            take_out_bevy_systems.run_if(bevy_ecs::schedule::common_conditions::run_once),
+        );
         #[cfg(feature = "bevy_light")]
         add_light_visibility(app);
     }
@@ -269,7 +273,8 @@ impl Plugin for BevyVisibilityPlugin {
 
 /// Takes out of `PostUpdate` Bevy's `check_visibility_cpu_culling` and,
 /// with feature `bevy_light`, bevy_light's `check_point_light_mesh_visibility`
-/// and `check_dir_light_mesh_visibility`: once, in `PreStartup`. The app's
+/// and `check_dir_light_mesh_visibility`: once, in the first frame's
+/// `First`. The app's
 /// systems ordered against them are ordered against their replacements
 /// instead (see `orders`).
 fn take_out_bevy_systems(world: &mut World) {
