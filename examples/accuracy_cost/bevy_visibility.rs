@@ -37,7 +37,7 @@ pub struct VisibilityRow {
     pub tested: u64,
 }
 
-/// The town with `cameras` cameras in four Apps: Bevy's, ours without and
+/// The town with `cameras` cameras in three Apps: Bevy's, ours without and
 /// with the proof; the world boxes alone are culled on the proof's tree.
 pub fn measure() -> Vec<VisibilityRow> {
     let mut rows = Vec::new();
@@ -93,7 +93,7 @@ pub fn measure() -> Vec<VisibilityRow> {
             None,
         ));
         rows.push(row(
-            "the tree's world boxes alone (cull only; not Bevy's answer)",
+            "the tree's world boxes alone (cull only, warm, back to back; not Bevy's answer)",
             alone_ms,
             alone_listed,
             None,
@@ -114,7 +114,6 @@ pub fn measure() -> Vec<VisibilityRow> {
     rows
 }
 
-/// Entity-camera pairs in the cameras' visible lists.
 /// The section's markdown (nothing without rows).
 pub fn markdown(rows: &[VisibilityRow], s: &mut String) {
     if rows.is_empty() {

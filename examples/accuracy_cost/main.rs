@@ -24,15 +24,16 @@
 //! cache. Every accuracy figure is counted against the brute-force oracle on
 //! the frames it describes, and the answers are asserted equal to the
 //! oracle's (the rays of every tenth frame and the last; the batched rays
-//! equal to single rays in every frame), so the price of imprecision shows as work and time, never as a
-//! wrong answer. Times are medians of single runs timed with
-//! `std::time::Instant`.
+//! equal to single rays in every frame), so the price of imprecision shows
+//! as work and time, never as a wrong answer. Times are medians of single
+//! runs timed with `std::time::Instant`.
 //!
-//! Run with `cargo run --release --example accuracy_cost`. Options:
-//! `--count N` (entities) and `--frames N` for a quicker run, `--warmup N`
-//! untimed frames of movement before the measured ones (for the steady
-//! state of a long-running game), `--no-docs` to print without writing. The
-//! tables go to stdout and, with feature `bevy_camera` (every section), to
+//! Run with `cargo run --release --example accuracy_cost --features
+//! bevy_camera` (a few minutes). Options: `--count N` (entities) and
+//! `--frames N` for a quicker run, `--warmup N` untimed frames of movement
+//! before the measured ones (540 by default: the steady state of a
+//! long-running game), `--no-docs` to print without writing. The tables go
+//! to stdout and, with feature `bevy_camera` (every section), to
 //! `docs/accuracy_cost.md`, the plots to `docs/accuracy_cost_*.svg`.
 
 #[cfg(feature = "bevy_camera")]
@@ -40,24 +41,29 @@ mod bevy_visibility;
 mod contenders;
 mod long_session;
 mod measure;
+mod modes;
 mod report;
 mod svg;
 
 use std::path::Path;
 use std::time::Instant;
 
-use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::{SceneRng, TownScene};
-use bevy_rtree::{CullMode, JoinMode, QueryWorkspace, RTree, RayHit, RayResults, TreeSettings};
+use bevy_rtree::{JoinMode, RTree, TreeSettings};
 
-use contenders::{Contender, Joined, Kept, Knob, contenders, join_trees};
+use contenders::{Contender, Joined, Knob, contenders, join_trees};
 use measure::{
     box_queries, mean, measure_box_queries, measure_builds, measure_churned_culls,
-    measure_churned_joins_and_rays, measure_width_queries, median, min_max, ms_since, oracle_of,
+    measure_churned_joins_and_rays, measure_width_queries, median, min_max, oracle_of,
 };
+use modes::{FrameFigures, frame_modes};
 
 /// The scene's seed, the same as the `town` example's.
 const SEED: u64 = 2024;
+/// Untimed frames of movement before the measured ones, by default: the
+/// trees have lived through 600 frames when the measuring ends, the steady
+/// state of a long-running game rather than a fresh load.
+const WARMUP_FRAMES: usize = 540;
 /// Box queries per set: a frame's worth of gameplay queries.
 const BOX_QUERIES: usize = 1_000;
 /// Half extent of a box query, in metres: a neighbourhood around an entity.
@@ -90,26 +96,6 @@ const WIDTHS: [usize; 3] = [4, 8, 16];
 /// measured at it.
 const DEFAULT_WIDTH: usize = RTree::<u32>::WIDTH;
 
-/// The per-frame figures of the mode comparisons on the default tree.
-#[derive(Default)]
-struct FrameFigures {
-    /// `[conservative, exact]`.
-    cull_ms: [Vec<f64>; 2],
-    visible_exact: Vec<f64>,
-    cull_false_positives: Vec<f64>,
-    cull_false_share: Vec<f64>,
-    /// `[Chebyshev, Euclidean]`.
-    join_ms: [Vec<f64>; 2],
-    pairs_euclidean: Vec<f64>,
-    join_extra: Vec<f64>,
-    join_extra_share: Vec<f64>,
-    /// `[incoherent, coherent]` x `[batched, single]`.
-    ray_ms: [[Vec<f64>; 2]; 2],
-    ray_hits: [Vec<f64>; 2],
-    ray_frames_compared: usize,
-    ray_frames_oracle: usize,
-}
-
 /// What the node widths cost beyond the contenders' figures.
 #[derive(Default)]
 struct WidthFigures {
@@ -120,126 +106,20 @@ struct WidthFigures {
     join_ms: [f64; 3],
 }
 
-const CULL_MODES: [CullMode; 2] = [CullMode::Conservative, CullMode::Exact];
-const JOIN_MODES: [JoinMode; 2] = [JoinMode::Chebyshev, JoinMode::Euclidean];
-
-/// Culls, rays and joins of one frame on the default tree and the kept
-/// enemy and barrel trees, each checked against the oracle.
-fn frame_modes(
-    frame: usize,
-    last: bool,
-    default: &dyn Kept,
-    joined: &dyn Joined,
-    scene: &mut TownScene,
-    oracles: [&BruteForce<u32>; 3],
-    figures: &mut FrameFigures,
-) {
-    let [oracle, enemy_oracle, barrel_oracle] = oracles;
-    let mut ws = QueryWorkspace::default();
-
-    // Culling: both modes, interleaved, the first mode alternating.
-    let frustum = scene.frustum();
-    let mut visible: [Vec<u32>; 2] = Default::default();
-    for rep in 0..CULL_REPS {
-        for k in 0..2 {
-            let m = (k + rep + frame) % 2;
-            visible[m].clear();
-            let start = Instant::now();
-            default.cull_into(&frustum, CULL_MODES[m], &mut ws, &mut visible[m]);
-            figures.cull_ms[m].push(ms_since(start));
-        }
-    }
-    for (m, list) in visible.iter_mut().enumerate() {
-        list.sort_unstable();
-        let expected = oracle.visible(&frustum, CULL_MODES[m]);
-        assert_eq!(
-            *list, expected,
-            "{:?} cull differs from the oracle",
-            CULL_MODES[m]
-        );
-    }
-    // Exact is conservative plus a separating-axis test: a subset.
-    let exact = visible[1].len() as f64;
-    let false_positives = (visible[0].len() - visible[1].len()) as f64;
-    figures.visible_exact.push(exact);
-    figures.cull_false_positives.push(false_positives);
-    figures
-        .cull_false_share
-        .push(false_positives / exact.max(1.0));
-
-    // Rays: batched and single, incoherent then coherent, order alternating.
-    let ray_sets = [scene.incoherent_rays(RAY_COUNT), scene.coherent_rays()];
-    let check_oracle = frame.is_multiple_of(RAY_ORACLE_EVERY) || last;
-    for (r, rays) in ray_sets.iter().enumerate() {
-        let mut batched = RayResults::default();
-        let mut single: Vec<Option<RayHit<u32>>> = Vec::with_capacity(rays.len());
-        for k in 0..2 * RAY_REPS {
-            let start = Instant::now();
-            if (k + frame).is_multiple_of(2) {
-                default.cast_rays_first(rays, &mut ws, &mut batched);
-                figures.ray_ms[r][0].push(ms_since(start));
-            } else {
-                single.clear();
-                single.extend(rays.iter().map(|ray| default.cast_ray_first(ray, &mut ws)));
-                figures.ray_ms[r][1].push(ms_since(start));
-            }
-        }
-        for (i, hit) in single.iter().enumerate() {
-            assert_eq!(
-                batched.first(i).expect("valid ray"),
-                *hit,
-                "batched and single rays differ"
-            );
-        }
-        if check_oracle {
-            for (ray, hit) in rays.iter().zip(&single) {
-                assert_eq!(
-                    oracle.ray_first(ray).expect("valid ray"),
-                    *hit,
-                    "ray differs from the oracle"
-                );
-            }
-        }
-        figures.ray_hits[r].push(single.iter().flatten().count() as f64);
-    }
-    figures.ray_frames_compared += 1;
-    figures.ray_frames_oracle += usize::from(check_oracle);
-
-    // Joins on the kept enemy and barrel trees, the first mode alternating.
-    let mut pairs: [Vec<(u32, u32)>; 2] = Default::default();
-    for k in 0..2 {
-        let m = (k + frame) % 2;
-        pairs[m].clear();
-        let start = Instant::now();
-        joined.cross_join_into(JOIN_MODES[m], &mut ws, &mut pairs[m]);
-        figures.join_ms[m].push(ms_since(start));
-    }
-    for (m, list) in pairs.iter_mut().enumerate() {
-        list.sort_unstable();
-        let expected = enemy_oracle
-            .cross_join(barrel_oracle, TownScene::JOIN_DISTANCE, JOIN_MODES[m])
-            .expect("a valid distance");
-        assert_eq!(
-            *list, expected,
-            "{:?} join differs from the oracle",
-            JOIN_MODES[m]
-        );
-    }
-    // Chebyshev accepts every Euclidean pair, so the difference is extra.
-    let euclidean = pairs[1].len() as f64;
-    let extra = (pairs[0].len() - pairs[1].len()) as f64;
-    figures.pairs_euclidean.push(euclidean);
-    figures.join_extra.push(extra);
-    figures.join_extra_share.push(extra / euclidean.max(1.0));
-}
-
+/// The number after `name` on the command line, or `default` without one;
+/// a value that is not a number stops the run with a message.
 fn arg(name: &str, default: usize) -> usize {
     let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
+    let Some(i) = args.iter().position(|a| a == name) else {
+        return default;
+    };
+    match args.get(i + 1).map(|v| v.parse()) {
+        Some(Ok(value)) => value,
+        _ => {
+            eprintln!("{name} takes a number");
+            std::process::exit(2);
+        }
+    }
 }
 
 struct Progress(Instant);
@@ -253,7 +133,7 @@ impl Progress {
 fn main() {
     let count = arg("--count", TownScene::STANDARD_COUNT).max(100);
     let frames = arg("--frames", 60).max(1);
-    let warmup = arg("--warmup", 0);
+    let warmup = arg("--warmup", WARMUP_FRAMES);
     // The docs hold every section: written only by a run that has them all.
     let write_docs = !std::env::args().any(|a| a == "--no-docs") && cfg!(feature = "bevy_camera");
     if !cfg!(feature = "bevy_camera") {

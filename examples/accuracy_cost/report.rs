@@ -8,10 +8,12 @@ use bevy_rtree::scene::TownScene;
 
 mod figures;
 
+use crate::contenders::repack_moves;
+use crate::modes::FrameFigures;
 use crate::{
     BOX_QUERIES, BOX_QUERY_HALF, BUILD_REPS, CHURNED_CULL_REPS, CULL_REPS, Contender,
-    DEFAULT_WIDTH, FrameFigures, JOIN_RAY_REPS, Knob, QUERY_REPS, RAY_COUNT, RAY_REPS, SEED,
-    WIDTH_REPS, WIDTHS, WidthFigures, mean, median, min_max,
+    DEFAULT_WIDTH, JOIN_RAY_REPS, Knob, QUERY_REPS, RAY_COUNT, RAY_REPS, SEED, WIDTH_REPS, WIDTHS,
+    WidthFigures, mean, median, min_max,
 };
 
 /// Everything the tables and plots are made of.
@@ -61,7 +63,7 @@ pub fn load_average() -> Option<String> {
 }
 
 /// `100000` as `100,000`.
-fn thousands(n: usize) -> String {
+pub(crate) fn thousands(n: usize) -> String {
     let digits = n.to_string();
     let mut out = String::new();
     for (i, d) in digits.chars().enumerate() {
@@ -103,7 +105,7 @@ impl Report<'_> {
         if self.frames != 60 {
             let _ = write!(args, " --frames {}", self.frames);
         }
-        if self.warmup != 0 {
+        if self.warmup != crate::WARMUP_FRAMES {
             let _ = write!(args, " --warmup {}", self.warmup);
         }
         if !args.is_empty() {
@@ -199,23 +201,33 @@ impl Report<'_> {
             "- Single-threaded; times are medians of single runs. Every answer \
              was asserted equal to the brute-force oracle's on the same frame \
              (rays: see section 5); the accuracy figures are counted from those \
-             answers, not estimated.\n"
+             answers, not estimated.\n- Knobs with no row here: the node split \
+             strategy (`TreeSettings::split`, which changes no answer; `cargo \
+             bench --bench tree` times the three on single inserts, moves and \
+             churned box queries) and width 12 (allowed, between 8 and 16).\n"
         );
     }
 
     fn bounds(&self, s: &mut String) {
+        let d = TreeSettings::default();
         let _ = writeln!(s, "## 1. Enlarged bounds (TreeSettings)\n");
         let _ = writeln!(
             s,
             "Each policy is bulk-loaded from the same boxes at width \
              {DEFAULT_WIDTH} (the default) and lives through the same frames: each \
-             frame's moves go to one `update_batch`, then `optimize` repairs all pending churn. \
-             Settings not varied in a row keep their defaults (absolute margin \
-             0.1 m, fraction 0, displacement factor 4, a level-1 node repacked \
-             after 64 restructuring moves), except that the fraction rows set \
-             the absolute margin to 0. The repack rows vary how much churn a \
-             level-1 node absorbs before `optimize` re-tiles its leaves \
-             (`TreeSettings::repack_fraction`).\n"
+             frame's moves go to one `update_batch`, then `optimize` repairs all \
+             pending churn. Settings not varied in a row keep their defaults \
+             (absolute margin {} m, fraction {}, displacement factor {}, a level-1 \
+             node repacked after {} restructuring moves), except that the fraction \
+             rows set the absolute margin to 0. The repack rows vary how much churn \
+             a level-1 node absorbs before `optimize` re-tiles its leaves \
+             (`TreeSettings::repack_fraction`). The plugin repairs with a budget \
+             (`SpatialIndexPlugin::optimize_budget`); here every pending repair is \
+             made each frame, so that the rows compare the policies alone.\n",
+            d.margin,
+            d.margin_fraction,
+            d.displacement_factor,
+            repack_moves(&d),
         );
         let _ = writeln!(s, "### Update side\n");
         let _ = writeln!(
@@ -283,6 +295,35 @@ impl Report<'_> {
             self.churn(),
             thousands(RAY_COUNT),
         );
+        // The rows that only vary what moves do (displacement, repack) load
+        // the very same fresh tree: their fresh box-query times show how
+        // far this machine's noise alone moves a figure in this run.
+        let same_load: Vec<f64> = self
+            .by_knob(Knob::Margin)
+            .chain(self.by_knob(Knob::Displacement))
+            .chain(self.by_knob(Knob::Repack))
+            .filter(|c| {
+                let d = TreeSettings::default();
+                c.width == DEFAULT_WIDTH
+                    && c.settings.margin == d.margin
+                    && c.settings.margin_fraction == d.margin_fraction
+            })
+            .map(|c| c.fresh.ms)
+            .collect();
+        if same_load.len() > 1 {
+            let (lo, hi) = min_max(&same_load);
+            let _ = writeln!(
+                s,
+                "The noise floor of this run: {} rows load the same fresh tree, \
+                 and their fresh box queries took {} to {} ms ({:.0} % apart); \
+                 differences between rows smaller than that are noise, and the \
+                 node counts, which no noise moves, are the surer cost.\n",
+                same_load.len(),
+                ms(lo),
+                ms(hi),
+                100.0 * (hi / lo - 1.0),
+            );
+        }
         let _ = writeln!(
             s,
             "| enlarged bounds | box queries, fresh (ms) | box queries, churned (ms) | extra candidates / query, fresh | extra candidates / query, churned | nodes / query, fresh | nodes / query, churned | frustum cull, churned (ms) | self join, churned (ms) | self join node pairs | rays, churned (ms) | nodes / ray |"
@@ -342,7 +383,7 @@ impl Report<'_> {
             s,
             "| **conservative (default)** | {} | {:.0} | {:.0} ({fp_lo:.0}–{fp_hi:.0}) | {:.2} % ({:.2}–{:.2} %) |",
             ms(median(&f.cull_ms[0])),
-            visible + median(&f.cull_false_positives),
+            median(&f.visible_conservative),
             median(&f.cull_false_positives),
             100.0 * median(&f.cull_false_share),
             100.0 * share_lo,
@@ -389,7 +430,7 @@ impl Report<'_> {
             s,
             "| Chebyshev | {} | {:.0} | {:.0} ({extra_lo:.0}–{extra_hi:.0}) | {:.1} % ({:.1}–{:.1} %) |",
             ms(median(&f.join_ms[0])),
-            pairs + median(&f.join_extra),
+            median(&f.pairs_chebyshev),
             median(&f.join_extra),
             100.0 * median(&f.join_extra_share),
             100.0 * share_lo,
@@ -408,7 +449,11 @@ impl Report<'_> {
         let _ = writeln!(
             s,
             "Default settings at every width. Bulk build: median of {BUILD_REPS} \
-             loads of the whole scene, widths interleaved. Update: as in section 1. \
+             loads of the whole scene, widths interleaved, each timed with dropping \
+             the tree it made (as a rebuild replaces one). Update: as in section 1. \
+             The same query can take other times here than in sections 2 and 5: \
+             there one tree answers the same query back to back, warm; here the \
+             widths take turns, and each meets caches the others left. \
              Box queries and frustum culls: as in section 1, on the churned trees. \
              Rays: batched `cast_rays`, first hit, on the churned trees (one set of \
              each kind from the final frame). Join: Euclidean enemies x barrels on \

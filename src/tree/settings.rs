@@ -51,7 +51,7 @@ pub struct TreeSettings {
     /// cut a frame's update and repairs by 6–13 % and 16–22 %, but the
     /// fatter internal bounds made a self join visit 10–11 % and 19–22 %
     /// more node pairs, which cost it more time than the update saved
-    /// (`cargo run --release --example accuracy_cost -- --warmup 540`).
+    /// (`cargo run --release --example accuracy_cost --features bevy_camera`).
     /// 8 saved 6–12 % of the update for 4 % more node pairs, about as much
     /// time again in a frame with a self join, and stretches a fast mover's
     /// box twice as far as 4 does.
