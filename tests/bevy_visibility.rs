@@ -70,6 +70,9 @@ struct Twins {
     spread: f32,
     /// Each world's change tick before its last update.
     before: [Tick; 2],
+    /// The visibility classes either world's cameras had a list for in an
+    /// earlier frame.
+    classes_seen: Vec<TypeId>,
 }
 
 impl Twins {
@@ -82,6 +85,7 @@ impl Twins {
             rng: SceneRng::new(seed),
             spread: 100.0,
             before: [Tick::new(0); 2],
+            classes_seen: Vec::new(),
         }
     }
 
@@ -322,17 +326,27 @@ impl Twins {
                 .collect::<Vec<_>>()
         };
         let (bevy_lists, our_lists) = (order(&self.bevy, 0), order(&self.ours, 1));
+        // In the frame a class is first seen, Bevy gives a list for it only
+        // to the cameras its query visits after the first that saw one, an
+        // order the twin worlds need not share (their cameras' archetypes
+        // can differ); from the next frame on every active camera has one.
+        let mut classes: Vec<TypeId> = bevy_lists
+            .iter()
+            .chain(&our_lists)
+            .flat_map(|(classes, _)| classes.iter().copied())
+            .collect();
+        classes.sort_unstable();
+        classes.dedup();
+        let settled = classes.iter().all(|c| self.classes_seen.contains(c));
         for (c, (b, o)) in bevy_lists.iter().zip(&our_lists).enumerate() {
             assert_eq!(b.1, o.1, "frame {frame}: camera {c}'s visible entities");
-            // In the frame a class is first seen, Bevy gives a list for it
-            // only to the cameras its query visits after the first that saw
-            // one, an order the twin worlds need not share (their cameras'
-            // archetypes can differ); from the next frame on every active
-            // camera has one.
-            if frame > 0 {
+            if settled {
                 assert_eq!(b.0, o.0, "frame {frame}: camera {c}'s classes");
             }
         }
+        self.classes_seen.extend(classes);
+        self.classes_seen.sort_unstable();
+        self.classes_seen.dedup();
         visible
     }
 
@@ -974,10 +988,10 @@ fn a_camera_has_a_list_for_every_class_seen_so_far() {
     assert!(ours.get(TypeId::of::<AppClass>()).is_empty());
 }
 
-/// A disabling component registered by a `Startup` system, the latest point
-/// at which Bevy's own culling still leaves its entities out (its systems'
-/// queries are set up at their first run): the index's side leaves them
-/// out too, on both ways of deciding candidates.
+/// A disabling component registered by a `Startup` system (Bevy asks for
+/// them before the app starts; its own culling, whose queries are set up
+/// at their first run, still leaves such entities out): the index's side
+/// leaves them out too, on both ways of deciding candidates.
 #[test]
 fn a_disabling_component_registered_at_startup_is_respected() {
     #[derive(Component)]

@@ -33,7 +33,8 @@ fn the_plugin_s_systems_have_no_ambiguities_among_themselves() {
 }
 
 /// With Bevy's transforms and cameras and the index serving Bevy's
-/// visibility: no pair of systems in `PostUpdate` is ambiguous.
+/// visibility: no pair of systems in `PostUpdate` (or `First`) is
+/// ambiguous.
 #[cfg(feature = "bevy_camera")]
 #[test]
 fn with_bevy_s_cameras_no_system_pair_in_post_update_is_ambiguous() {
@@ -48,13 +49,23 @@ fn with_bevy_s_cameras_no_system_pair_in_post_update_is_ambiguous() {
         .add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin))
         .add_spatial_layer::<Enemy>()
         .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean);
-    app.edit_schedule(PostUpdate, |schedule| {
-        schedule.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..Default::default()
-        });
-    });
+    ambiguities_are_errors(&mut app);
     app.update();
+}
+
+/// Ambiguity detection as an error in `PostUpdate`, where the plugin's
+/// systems run, and in `First`, where Bevy's culling is taken out.
+#[cfg(feature = "bevy_camera")]
+fn ambiguities_are_errors(app: &mut App) {
+    use bevy_ecs::schedule::ScheduleLabel;
+    for label in [First.intern(), PostUpdate.intern()] {
+        app.edit_schedule(label, |schedule| {
+            schedule.set_build_settings(ScheduleBuildSettings {
+                ambiguity_detection: LogLevel::Error,
+                ..Default::default()
+            });
+        });
+    }
 }
 
 /// The same with Bevy's lights, whose shadow visibility the index serves
@@ -79,12 +90,7 @@ fn with_bevy_s_lights_no_system_pair_in_post_update_is_ambiguous() {
     .insert_resource(Assets::<SkinnedMeshInverseBindposes>::default())
     .init_asset::<bevy_image::Image>()
     .add_plugins((SpatialIndexPlugin::default(), BevyVisibilityPlugin));
-    app.edit_schedule(PostUpdate, |schedule| {
-        schedule.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..Default::default()
-        });
-    });
+    ambiguities_are_errors(&mut app);
     app.finish();
     app.cleanup();
     app.update();

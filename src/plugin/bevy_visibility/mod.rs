@@ -258,13 +258,17 @@ impl Plugin for BevyVisibilityPlugin {
         // the first frame, not here nor in `PreStartup`: taking a system out
         // initializes its schedule, and every query of a schedule
         // initialized then would miss a disabling component registered
-        // after it (by a later plugin, or by a `Startup` system), which
-        // Bevy's own systems, set up at their first run, respect. By the
-        // first frame, Bevy's plugins are there whether they were added
-        // before or after this one, and the startup schedules have run.
+        // after it (by a later plugin, or by a startup system), which
+        // Bevy's own systems, set up at their first run, respect (Bevy asks
+        // for them before the app starts). By the first frame, Bevy's
+        // plugins are there whether they were added before or after this
+        // one, and the startup schedules have run. It touches only
+        // `PostUpdate`, so its order among `First`'s systems is free.
         app.add_systems(
             First,
-            take_out_bevy_systems.run_if(bevy_ecs::schedule::common_conditions::run_once),
+            take_out_bevy_systems
+                .run_if(bevy_ecs::schedule::common_conditions::run_once)
+                .ambiguous_with_all(),
         );
         #[cfg(feature = "bevy_light")]
         add_light_visibility(app);
