@@ -279,7 +279,7 @@ pub(crate) fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
             displacement_factor: factor,
             ..d
         };
-        let label = format!("margin 0.1 m, displacement x{factor}");
+        let label = format!("margin {} m, displacement x{factor}", d.margin);
         specs.push((
             Knob::Displacement,
             label,
@@ -296,7 +296,7 @@ pub(crate) fn contenders(boxes: &[Aabb]) -> Vec<Contender> {
         let moves = repack_moves(&settings);
         specs.push((
             Knob::Repack,
-            format!("margin 0.1 m, repack after {moves} moves"),
+            format!("margin {} m, repack after {moves} moves", d.margin),
             moves.to_string(),
             DEFAULT_WIDTH,
             settings,

@@ -28,6 +28,16 @@ const TELEPORTS_PER_MILLE: usize = 10;
 /// The slice of a rebuild on the calling thread, per frame.
 const SLICE: Duration = Duration::from_micros(250);
 
+/// The plugin's repair budget a frame, as a game's session runs it
+/// (`SpatialIndexPlugin::optimize_budget`'s default; the plugin's value
+/// where the example is built with it).
+fn repair_budget() -> usize {
+    #[cfg(feature = "plugin")]
+    return bevy_rtree::plugin::SpatialIndexPlugin::default().optimize_budget;
+    #[cfg(not(feature = "plugin"))]
+    64
+}
+
 /// How one contender keeps its tree.
 #[derive(Clone, Copy)]
 enum Upkeep {
@@ -94,7 +104,7 @@ impl Kept {
         self.tree.update_batch(&batch).expect("valid moves");
         // The plugin's repair budget (`SpatialIndexPlugin::optimize_budget`),
         // as a game's session runs it; section 1 repairs everything.
-        self.tree.optimize(64);
+        self.tree.optimize(repair_budget());
         let tree = &mut self.tree;
         let swapped = match self.upkeep {
             Upkeep::Repair => false,
@@ -335,7 +345,7 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
         "\n## 6. Long sessions: the jump limit and the rebuild (TreeSettings, RebuildMode)\n\n\
          {} entities, {FRAMES} frames: each frame the standard 10 % step and {} % \
          teleport anywhere in the world. Maintenance is the calling thread's time per \
-         frame (moves, repair with the plugin's budget of 64 repacks, and the \
+         frame (moves, repair with the plugin's budget of {} repacks, and the \
          rebuild's slices or its swap), mean over the \
          session; the work is counted after the last frame, maintained ÷ a fresh bulk \
          load of the same boxes (1.00 = as good as fresh): nodes visited by 1,000 box \
@@ -343,7 +353,8 @@ pub fn markdown(rows: &[SessionRow], count: usize, s: &mut String) {
          box queries' time (median of 7). Every tree's answers equal the brute-force \
          oracle's.\n",
         crate::report::thousands(count),
-        TELEPORTS_PER_MILLE as f64 / 10.0
+        TELEPORTS_PER_MILLE as f64 / 10.0,
+        repair_budget(),
     );
     let _ = writeln!(
         s,
