@@ -94,6 +94,16 @@ pub struct Renderable;
 /// whose world box is unusable (a NaN or zero-scale transform, a NaN or
 /// negative half extent) are tested one by one, as Bevy tests them.
 ///
+/// An app's systems ordered before or after Bevy's culling
+/// (`.after(check_visibility_cpu_culling)`) or its light systems keep that
+/// order against the systems that replace them. What the schedule keeps to
+/// itself is not carried over: a set's order against one of Bevy's systems
+/// (order a whole set against Bevy's sets instead,
+/// `VisibilitySystems::CheckVisibility` or
+/// `SimulationLightSystems::CheckLightVisibility`), an `ambiguous_with`
+/// exemption, and an `*_ignore_deferred` opt-out (carried as a plain
+/// order).
+///
 /// ```
 /// use bevy_app::prelude::*;
 /// use bevy_rtree::plugin::{BevyVisibilityPlugin, SpatialIndexPlugin};
