@@ -48,8 +48,8 @@ pub struct TreeSettings {
     /// ahead of a moving entry in its direction of motion. Range `[0, 100]`.
     ///
     /// The default, `4`: on the standard scene after 600 frames, 16 and 32
-    /// cut a frame's update and repairs by 6–13 % and 16–22 %, but the
-    /// fatter internal bounds made a self join visit 10–11 % and 19–22 %
+    /// cut a frame's update and repairs by 6–14 % and 16–22 %, but the
+    /// fatter internal bounds made a self join visit 10–11 % and 19–23 %
     /// more node pairs, which cost it more time than the update saved
     /// (`cargo run --release --example accuracy_cost --features bevy_camera`).
     /// 8 saved 6–12 % of the update for 4 % more node pairs, about as much
