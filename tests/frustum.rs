@@ -134,7 +134,7 @@ proptest! {
 }
 
 /// The unit-box world plus 1,000 distractors, so pruning is exercised.
-fn with_distractors(special: &[Aabb]) -> (RTree<u32, 4>, BruteForce<u32>) {
+fn with_distractors(special: &[Aabb]) -> (Worlds, BruteForce<u32>) {
     let mut rng = bevy_rtree::scene::SceneRng::new(9);
     let mut boxes = special.to_vec();
     for _ in 0..1_000 {
@@ -145,7 +145,43 @@ fn with_distractors(special: &[Aabb]) -> (RTree<u32, 4>, BruteForce<u32>) {
         );
         boxes.push(Aabb::new(c, c + Vec3::splat(rng.range(0.0, 2.0))).unwrap());
     }
-    build(&boxes)
+    let (among, oracle) = build(&boxes);
+    let (alone, alone_oracle) = build(special);
+    let worlds = Worlds {
+        among,
+        alone,
+        alone_oracle,
+    };
+    (worlds, oracle)
+}
+
+/// The hard cases among 1,000 distractors, and alone in a tree of their
+/// own (SEMANTICS asks for both): `visible` answers for the first, after
+/// holding the second to its own oracle on the same view.
+struct Worlds {
+    among: RTree<u32, 4>,
+    alone: RTree<u32, 4>,
+    alone_oracle: BruteForce<u32>,
+}
+
+impl Worlds {
+    fn visible(&self, view: &Frustum, mode: CullMode) -> Vec<u32> {
+        let alone = self.alone.visible(view, mode);
+        assert_eq!(
+            alone,
+            self.alone_oracle.visible(view, mode),
+            "the hard cases alone, {mode:?}"
+        );
+        self.among.visible(view, mode)
+    }
+}
+
+impl std::ops::Deref for Worlds {
+    type Target = RTree<u32, 4>;
+
+    fn deref(&self) -> &RTree<u32, 4> {
+        &self.among
+    }
 }
 
 fn x_slab(eye: Vec3, offset: f32) -> Frustum {
