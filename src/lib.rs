@@ -117,7 +117,7 @@
 //! | raycasts | [`RTree::visit_ray`], [`RTree::cast_rays`] (batched) | `cast_ray`, `cast_ray_all`, `ray_hits_any` |
 //! | distance joins | [`RTree::visit_self_join`], [`RTree::visit_cross_join`], [`RTree::visit_self_join_moved`] | `self_join`, `cross_join`, `*_into` |
 //! | sphere overlap / within radius (distance to the closed box `<= r`) | [`RTree::visit_sphere`] | `overlapping_sphere`, `overlapping_sphere_into`, `any_overlapping_sphere`, `within_radius`, `within_radius_into` |
-//! | k nearest neighbours (by `(distance, key)`, optional inclusive max distance) | [`RTree::visit_nearest`] (depth first, nearest child first) | `nearest`, `nearest_into` |
+//! | k nearest neighbours (by `(distance_sq, key)`, optional inclusive max distance) | [`RTree::visit_nearest`] (depth first, nearest child first) | `nearest`, `nearest_into` |
 //!
 //! Every query takes a [`QueryWorkspace`] (or makes one): keep one per
 //! system and a frame's queries do not allocate. Its [`QueryStats`] count
@@ -168,8 +168,7 @@
 //! 1,000 box queries 0.24 against 0.19 ms, a cull 0.100 against 0.073 ms,
 //! 1,000 incoherent rays 0.87 against 0.74 ms and the self join 8.2
 //! against 6.6 ms; a frame's 10,000 moves cost the same within noise.
-//! Sphere and nearest-neighbour queries test lanes one by one and were not
-//! compared.
+//! Sphere and nearest-neighbour queries were not compared.
 //! `cargo run --release --example accuracy_cost --features bevy_camera`
 //! compares widths 4, 8 and 16.
 //!

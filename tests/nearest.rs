@@ -250,6 +250,93 @@ fn equal_distances_resolve_to_the_smallest_key() {
     );
 }
 
+/// The visitor's limit: a NaN one is ignored (every entry is still
+/// reported), a negative one stops every later report, `Break` stops at
+/// once, and a limit that shrinks to the best so far finds the nearest.
+#[test]
+fn the_visitor_s_limit_is_kept_as_documented() {
+    let boxes: Vec<Aabb> = (0..40)
+        .map(|i| {
+            let x = 3.0 + i as f32;
+            common::aabb([x, 0.0, 0.0], [x + 0.5, 1.0, 1.0])
+        })
+        .collect();
+    let (tree, oracle) = world(&boxes);
+    let mut ws = QueryWorkspace::default();
+    let p = Vec3::new(0.0, 0.5, 0.5);
+    let visit = |next: fn(usize) -> ControlFlow<(), f64>| {
+        let mut seen = Vec::new();
+        tree.visit_nearest(p, None, &mut QueryWorkspace::default(), |key, _, _| {
+            seen.push(key);
+            next(seen.len())
+        })
+        .unwrap();
+        seen.sort_unstable();
+        seen
+    };
+    let mut all: Vec<u32> = tree.iter().map(|(_, key, _)| key).collect();
+    all.sort_unstable();
+    assert_eq!(visit(|_| ControlFlow::Continue(f64::NAN)), all);
+    assert_eq!(visit(|_| ControlFlow::Continue(f64::INFINITY)), all);
+    assert_eq!(visit(|_| ControlFlow::Continue(-1.0)).len(), 1);
+    assert_eq!(visit(|_| ControlFlow::Break(())).len(), 1);
+    assert_eq!(
+        visit(|n| if n < 5 {
+            ControlFlow::Continue(f64::NAN)
+        } else {
+            ControlFlow::Break(())
+        })
+        .len(),
+        5
+    );
+    // The limit shrunk to the best so far: the last report is the nearest.
+    let mut best = (u32::MAX, f64::INFINITY);
+    tree.visit_nearest(p, None, &mut ws, |key, _, d2| {
+        if (d2, key) < (best.1, best.0) {
+            best = (key, d2);
+        }
+        ControlFlow::Continue(best.1)
+    })
+    .unwrap();
+    let want = oracle.nearest(p, 1, None).unwrap();
+    assert_eq!((best.0, best.1), (want[0].key, want[0].distance_sq));
+    assert_eq!(best.0, 0);
+}
+
+/// Squared distances of 1 and 1 + 2^-52 (exact in `f64`) have the same
+/// square root, 1.0, after rounding: the order is by the squared distance,
+/// so the nearer entry comes first although its key is the larger.
+#[test]
+fn a_nearer_squared_distance_comes_first_where_the_distances_round_equal() {
+    let mut boxes = vec![common::aabb([0.0, 9.0, 0.0], [1.0, 10.0, 1.0]); 6];
+    // Key 5 is one metre away along x; key 3 as far along x and 2^-26 above
+    // the point's y, so its squared distance is 1 + 2^-52.
+    boxes[5] = common::aabb([1.0, 0.0, 0.0], [2.0, 1.0, 1.0]);
+    boxes[3] = common::aabb([1.0, 2f32.powi(-26), 0.0], [2.0, 1.0, 1.0]);
+    let (tree, oracle) = world(&boxes);
+    let nearest = tree.nearest(Vec3::ZERO, 2, None).unwrap();
+    assert_eq!(keys(&nearest), [5, 3]);
+    // The ground truth, without the crate's arithmetic.
+    let (near, farther) = (1.0f64, 1.0 + 2f64.powi(-52));
+    assert!(near < farther && near.sqrt() == farther.sqrt());
+    assert_eq!(nearest[0].distance_sq, near);
+    assert_eq!(nearest[1].distance_sq, farther);
+    assert_eq!(nearest[0].distance(), nearest[1].distance());
+    assert_eq!(keys(&tree.within_radius(Vec3::ZERO, 1.0).unwrap()), [5]);
+    assert_eq!(
+        keys(&tree.within_radius(Vec3::ZERO, 1.0 + f32::EPSILON).unwrap()),
+        [5, 3]
+    );
+    check(
+        &tree,
+        &oracle,
+        &[
+            query(Vec3::ZERO, 1.0, 1, 1.0),
+            query(Vec3::ZERO, 1.5, 2, 1.5),
+        ],
+    );
+}
+
 #[test]
 fn ties_spread_over_many_leaves_still_go_to_the_smallest_keys() {
     // 300 identical boxes inserted in descending key order fill many leaves

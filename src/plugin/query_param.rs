@@ -144,7 +144,7 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
 
     /// The `k` entities `filter` allows nearest to `point` (box distance, 0
     /// inside), at most `max_distance` away if given, sorted by
-    /// `(distance, entity)`, into `out` (cleared first).
+    /// `(distance_sq, entity)`, into `out` (cleared first).
     pub fn nearest(
         &mut self,
         point: Vec3,
@@ -159,7 +159,7 @@ impl<L: Component> SpatialQuery<'_, '_, L> {
     }
 
     /// Every entity `filter` allows within `radius` of `point`, sorted by
-    /// `(distance, entity)`, into `out` (cleared first).
+    /// `(distance_sq, entity)`, into `out` (cleared first).
     pub fn within_radius(
         &mut self,
         point: Vec3,

@@ -37,8 +37,10 @@ use crate::tree::RTree;
 /// `distance_sq` is the squared Euclidean distance from the point to the
 /// entry's closed exact box, computed in `f64` from the `f32` inputs: `0` when
 /// the point is inside or on the box. Lists of neighbours are sorted by
-/// `(distance_sq, key)`, which is the order of [`Neighbor::distance`] with ties
-/// broken by key.
+/// `(distance_sq, key)`: ties are broken by key only where `distance_sq` ties.
+/// Two squared distances that differ can round to the same
+/// [`Neighbor::distance`] (its square root, rounded); the nearer by
+/// `distance_sq` comes first then, whatever the keys.
 ///
 /// ```
 /// use bevy_rtree::Neighbor;

@@ -7,7 +7,10 @@
 pub struct QueryStats {
     /// Nodes whose lanes were tested.
     pub nodes_visited: u64,
-    /// Leaf lanes (entries) tested against the query's exact predicate.
+    /// Leaf lanes (entries) tested: every lane of each leaf a query visits
+    /// (once per ray of a batch that visits it), whether or not its box
+    /// then takes the exact test; for a join, each pair of lanes its leaf
+    /// pairs test.
     pub entries_tested: u64,
 }
 
