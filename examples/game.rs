@@ -49,10 +49,15 @@ pub fn build() -> App {
         .add_spatial_join::<Enemy, Barrel>(5.0, JoinMode::Euclidean)
         .init_resource::<Seen>()
         .add_systems(Update, drive_trucks)
-        // Queries in PostUpdate, once the index holds this frame's boxes.
+        // Queries in PostUpdate, once the index holds this frame's boxes;
+        // the join's messages are read after the set that writes them, so
+        // that a pair is heard in the frame it starts.
         .add_systems(
             PostUpdate,
-            (look_for_the_player, warn_enemies).in_set(SpatialIndexSystems::Queries),
+            (
+                look_for_the_player.in_set(SpatialIndexSystems::Queries),
+                warn_enemies.after(SpatialIndexSystems::Queries),
+            ),
         );
     let world = app.world_mut();
     let unit = Aabb::new(Vec3::splat(-0.5), Vec3::splat(0.5)).unwrap();
@@ -89,14 +94,19 @@ pub fn build() -> App {
         let at = Vec3::new(angle.cos(), 0.0, angle.sin()) * 15.0 + Vec3::Y * 0.5;
         world.spawn((Enemy, Transform::from_translation(at), LocalBounds(unit)));
         if i % 2 == 0 {
-            let wall = Aabb::new(Vec3::new(-0.2, -1.0, -1.5), Vec3::new(0.2, 2.0, 1.5)).unwrap();
+            // Half-way to the player, 3 m wide across the line of sight
+            // (local x) and 0.4 m thick along it (local z, which
+            // `looking_to` turns towards the enemy).
+            let wall = Aabb::new(Vec3::new(-1.5, -1.0, -0.2), Vec3::new(1.5, 2.0, 0.2)).unwrap();
             world.spawn((
                 Transform::from_translation(at * 0.5).looking_to(at, Vec3::Y),
                 LocalBounds(wall),
             ));
         }
         if i % 4 == 0 {
-            let beside = at + Vec3::new(2.0, 0.0, 0.0);
+            // Beside the enemy along the ring, out of its line of sight.
+            let along_ring = Vec3::new(-angle.sin(), 0.0, angle.cos());
+            let beside = at + along_ring * 2.0;
             world.spawn((
                 Barrel,
                 Transform::from_translation(beside),

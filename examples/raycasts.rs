@@ -109,7 +109,9 @@ fn main() {
         .skip_while(|a| a != "--frames")
         .nth(1)
         .and_then(|v| v.parse().ok())
-        .unwrap_or(60);
+        .unwrap_or(60)
+        // At least one frame, so that the oracle is asked at least once.
+        .max(1);
     let mut app = build();
     let mut all_agree = true;
     for frame in 1..=frames {

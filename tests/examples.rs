@@ -219,6 +219,20 @@ fn the_game_sees_hits_and_warns_as_brute_force_does() {
     use bevy_rtree::plugin::{LocalBounds, RayCaster, SpatialBounds, layer_oracle};
     use bevy_transform::prelude::{GlobalTransform, Transform};
     use glam::Vec3;
+    // The warnings of the first frame: every pair within 5 m (nothing
+    // that counts moves) is heard in the frame it starts.
+    let mut first = game::build();
+    // And no two of its systems that touch the same data run in an order
+    // left to the executor.
+    first.edit_schedule(bevy_app::PostUpdate, |schedule| {
+        schedule.set_build_settings(bevy_ecs::schedule::ScheduleBuildSettings {
+            ambiguity_detection: bevy_ecs::schedule::LogLevel::Error,
+            ..Default::default()
+        });
+    });
+    first.update();
+    let mut first_warned = first.world().resource::<game::Seen>().warned.clone();
+    first_warned.sort_unstable();
     let mut app = game::build();
     for _ in 0..5 {
         app.update();
@@ -268,6 +282,7 @@ fn the_game_sees_hits_and_warns_as_brute_force_does() {
         "one warning per enemy-barrel pair within 5 m"
     );
     assert!(!pairs.is_empty());
+    assert_eq!(first_warned, pairs, "warned in the first frame");
     // Where each truck is, from its own `Transform` (it has no parent).
     let mut trucks = world.query_filtered::<&Transform, With<game::Truck>>();
     let mut truck_at = |world: &World, truck: Entity| *trucks.get(world, truck).unwrap();

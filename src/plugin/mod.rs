@@ -151,8 +151,8 @@ pub struct SpatialIndexPlugin {
     /// Whether and how each layer's tree is rebuilt when the changes since
     /// its last rebuild reach a quarter of its entries, so that it stays
     /// near the speed of a fresh one in long sessions: on Bevy's async
-    /// task pool by default where the app has one, off where it has none;
-    /// see [`RebuildMode`].
+    /// task pool by default where the app has one and the feature
+    /// `parallel` is on, off otherwise; see [`RebuildMode`].
     pub rebuild: RebuildMode,
 }
 
