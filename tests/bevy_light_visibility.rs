@@ -590,3 +590,103 @@ fn a_view_without_cascades_still_marks_unbounded_casters() {
         );
     }
 }
+
+/// Bevy's sphere test of point and spot lights runs in `f32`, and where its
+/// products or squares overflow to infinity it accepts the caster, leaving
+/// the light's frusta to decide: a caster whose transform has a column of
+/// 1e37 (its box small, a metre wide), and lights so far away (2e19 m)
+/// that the distance squared overflows, seen from a camera inside their
+/// range. Each caster is listed, and marked visible, as Bevy lists and
+/// marks it; Bevy does list the point lights' overflowing casters, so the
+/// case is met.
+#[test]
+fn casters_where_bevy_s_sphere_test_overflows_are_listed_as_bevy_lists_them() {
+    use bevy_camera::primitives::Aabb;
+    let mut twins = Twins::new(3);
+    let thin = |scale: f32| Aabb {
+        center: Vec3::ZERO.into(),
+        half_extents: Vec3::new(0.5 / scale, 0.5, 0.5).into(),
+    };
+    // Near a light at the origin (range 100): a caster stretched 1e37 times
+    // along x (a column Bevy's test overflows on), one stretched 1e17 times
+    // (one it does not), and one at the origin for the far lights.
+    let corner = Vec3::splat(86.6);
+    let casters = [
+        (corner, 1e37, thin(1e37)),
+        (corner, 1e17, thin(1e17)),
+        (corner + Vec3::Y, 1.0, thin(1.0)),
+        (Vec3::ZERO, 1.0, thin(1.0)),
+    ];
+    for (at, scale, aabb) in casters {
+        let pair = twins.both(|world, _, _| {
+            world
+                .spawn((
+                    Mesh3d::default(),
+                    Transform::from_translation(at).with_scale(Vec3::new(scale, 1.0, 1.0)),
+                    aabb,
+                ))
+                .id()
+        });
+        twins.casters.push(pair);
+    }
+    let far = Vec3::new(1.6e19, 1.4e19, 0.0);
+    let lights = [
+        (LightKind::Point, Vec3::ZERO, 100.0),
+        (LightKind::Point, far, 2.1e19),
+        (LightKind::Spot, far, 2.1e19),
+    ];
+    for (kind, at, range) in lights {
+        let pair = twins.both(|world, _, _| {
+            // The spot looks 20 degrees aside from the caster at the origin:
+            // the caster is then beyond the range but not beyond the far
+            // plane, where only the overflow of the sphere test accepts it.
+            let aim = if at == far {
+                Vec3::new(0.0, 0.0, 8e18)
+            } else {
+                Vec3::ZERO
+            };
+            let place = Transform::from_translation(at).looking_at(aim, Vec3::Y);
+            let light = match kind {
+                LightKind::Spot => world.spawn((
+                    SpotLight {
+                        range,
+                        shadow_maps_enabled: true,
+                        ..SpotLight::default()
+                    },
+                    place,
+                )),
+                _ => world.spawn((
+                    PointLight {
+                        range,
+                        shadow_maps_enabled: true,
+                        ..PointLight::default()
+                    },
+                    place,
+                )),
+            };
+            light.id()
+        });
+        twins.lights.push((kind, pair));
+    }
+    let camera = twins.both(|world, _, _| {
+        world
+            .spawn((
+                Camera3d::default(),
+                Transform::from_xyz(1e18, 1e18, 0.0).looking_at(Vec3::ZERO, Vec3::Y),
+            ))
+            .id()
+    });
+    twins.cameras.push(camera);
+    for frame in 0..3 {
+        twins.update();
+        twins.check(frame);
+    }
+    // Bevy lists the 1e37 caster for the near light, and the caster at the
+    // origin for the far point light (beyond its range, inside its face's
+    // far plane), where its sphere test overflows.
+    let lists = twins.light_lists(0);
+    let listed = |light: usize, caster: usize| lists[light].iter().flatten().any(|&c| c == caster);
+    assert!(listed(0, 0) && listed(1, 3), "{lists:?}");
+    let index = twins.apps[1].world().resource::<SpatialIndex<Renderable>>();
+    index.validate().unwrap();
+}

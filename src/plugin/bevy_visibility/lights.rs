@@ -301,6 +301,17 @@ fn mark(view_visibility: &mut Option<Mut<ViewVisibility>>) {
     }
 }
 
+/// Where a light's centre and the entries lie within this many metres of
+/// the origin on every axis, no square or product of Bevy's sphere test
+/// overflows `f32` for an indexed entry: the vector from the light to a box
+/// is then under `sqrt(3) * 2 * 5e18` m long, its square under `f32::MAX`,
+/// and its product with a column of at most
+/// [`COLUMN_BEYOND_BEVY_S_TEST`](super::sync::COLUMN_BEYOND_BEVY_S_TEST)
+/// far under it too. (A light's radius times that length may still
+/// overflow; then Bevy's test accepts every caster, and so does the
+/// tree's, the radius being longer than any gap.)
+pub(super) const FAR_FOR_BEVY_S_SPHERE_TEST: f64 = 5e18;
+
 /// The tree's candidates for a light's range sphere: every entry whose
 /// box `B` lies within `radius + |half extents of B|` of the centre (plus a
 /// slack for rounding). Bevy's sphere test accepts an oriented box only if
@@ -319,8 +330,12 @@ fn sphere_candidates(
     let centre = Vec3::from(sphere.center).as_dvec3();
     let radius = f64::from(sphere.radius);
     let out = &mut scratch.candidates;
-    if !centre.is_finite() || !radius.is_finite() {
-        // A sphere Bevy's test cannot decide either: every entry is a
+    let farthest = centre.abs().max_element()
+        + f64::from(bounds.min.abs().max(bounds.max.abs()).max_element());
+    if !centre.is_finite() || !radius.is_finite() || farthest > FAR_FOR_BEVY_S_SPHERE_TEST {
+        // A sphere Bevy's test cannot decide either, or one so far from
+        // the entries that Bevy's `f32` squares and products may overflow
+        // to infinity (which accepts the caster): every entry is a
         // candidate, and Bevy's test says what it says.
         out.extend(tree.iter().map(|(_, entity, _)| (entity, false)));
         return;

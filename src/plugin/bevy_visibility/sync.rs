@@ -95,10 +95,17 @@ impl RenderableHandle {
     }
 }
 
-/// Beyond this, a transform's column may overflow `f32` in Bevy's box
-/// test (`f32::MAX / sqrt(3)` is the least that can), which then gives NaN
-/// and keeps the entity whatever its box.
-const COLUMN_BEYOND_BEVY_S_TEST: f32 = 1e37;
+/// Beyond this, a transform's column may overflow `f32` in Bevy's tests,
+/// whose answer a world box then cannot give: a camera plane's product
+/// with it (`f32::MAX / sqrt(3)` is the least that can) gives NaN, which
+/// keeps the entity whatever its box; a light's sphere test takes the
+/// product of the column with the vector from the light to the box, which
+/// overflows to infinity and accepts the entity once that vector is long
+/// enough (34 m for a column of 1e37). Up to 1e18, that vector would have
+/// to be longer than the lights' sphere query ever lets it be
+/// (`lights::FAR_FOR_BEVY_S_SPHERE_TEST`). No game scales an entity by
+/// that much: such entities are left to Bevy's tests, one by one.
+pub(super) const COLUMN_BEYOND_BEVY_S_TEST: f32 = 1e18;
 
 /// The world box of a Bevy `Aabb` under a transform: the box around the
 /// oriented box Bevy's tests see, rounded outward ([contract S1](crate::contract)). An
