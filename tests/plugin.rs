@@ -152,6 +152,48 @@ fn disabled_entities_leave_every_index_and_come_back_enabled() {
     assert_eq!(indexed_in::<Enemy>(&app), sorted([enemy, asleep]));
 }
 
+/// An app that takes `Disabled` out of Bevy's query filters
+/// (`DefaultQueryFilters::empty()`, before its first update) sees disabled
+/// entities in every query: so do the indexes, whose answers stay those of
+/// a query over the entities' boxes, whether or not a box changed while
+/// disabled.
+#[test]
+fn disabled_entities_stay_where_the_app_s_queries_see_them() {
+    use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
+    let mut app = app();
+    app.add_spatial_layer::<Enemy>()
+        .insert_resource(DefaultQueryFilters::empty());
+    let enemy = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let other = app.world_mut().spawn(unit_at(2.0)).id();
+    app.update();
+    // What Bevy's queries see, to compare the indexes with.
+    let seen = |app: &mut App| {
+        let world = app.world_mut();
+        let mut boxes = world.query::<(Entity, &SpatialBounds)>();
+        let mut seen: Vec<(Entity, Aabb)> = boxes.iter(world).map(|(e, b)| (e, b.0)).collect();
+        seen.sort_unstable_by_key(|s| s.0);
+        seen
+    };
+    let in_index = |app: &App| {
+        let index = app.world().resource::<SpatialIndex<SpatialBounds>>();
+        let mut held: Vec<(Entity, Aabb)> = index.tree().iter().map(|(_, e, b)| (e, b)).collect();
+        held.sort_unstable_by_key(|s| s.0);
+        held
+    };
+    app.world_mut().entity_mut(enemy).insert(Disabled);
+    app.update();
+    assert_eq!(seen(&mut app).len(), 2, "Bevy's queries still see it");
+    assert_eq!(in_index(&app), seen(&mut app));
+    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+    app.world_mut().entity_mut(enemy).insert(unit_at(5.0));
+    app.update();
+    assert_eq!(in_index(&app), seen(&mut app));
+    app.world_mut().entity_mut(enemy).remove::<Disabled>();
+    app.update();
+    assert_eq!(in_index(&app), seen(&mut app));
+    assert_eq!(indexed(&app), sorted([enemy, other]));
+}
+
 /// Disabling components of the app's own, registered in the first frame's
 /// `Update`, after the startup sync indexed the entities (Bevy's queries
 /// leave them out where the query is first used after that, as the

@@ -27,6 +27,14 @@ use super::SpatialBounds;
 use super::diagnostics::DiagnosticsSink;
 use super::index::{self, SpatialIndex};
 
+/// Whether Bevy's queries leave out an entity with Bevy's `Disabled`: they
+/// do unless the app took it out of `DefaultQueryFilters` (with
+/// `DefaultQueryFilters::empty()`, say), and the indexes do as they do.
+pub(crate) fn disabled_is_left_out(filters: &DefaultQueryFilters, components: &Components) -> bool {
+    let disabled = components.component_id::<Disabled>();
+    filters.disabling_ids().any(|id| Some(id) == disabled)
+}
+
 /// Makes the observer that puts an entity back when it loses the
 /// disabling component it is given.
 pub(crate) type ComeBack = fn(ComponentId) -> Observer;

@@ -412,11 +412,16 @@ impl SpatialAppExt for App {
             },
         )
         .add_observer(
-            // Bevy's queries leave a disabled entity out; so do the indexes.
+            // Bevy's queries leave a disabled entity out (unless the app
+            // took `Disabled` out of their filters); so do the indexes.
             |event: On<Add<Disabled>>,
              mut index: ResMut<SpatialIndex<L>>,
+             filters: Res<DefaultQueryFilters>,
+             components: &bevy_ecs::component::Components,
              sink: Res<DiagnosticsSink>| {
-                index::remove_from_layer(event.entity, &mut index, &sink);
+                if disabling::disabled_is_left_out(&filters, components) {
+                    index::remove_from_layer(event.entity, &mut index, &sink);
+                }
             },
         )
         .add_observer(

@@ -109,6 +109,50 @@ fn a_sparse_disabling_component_changes_no_answer() {
     }
 }
 
+/// An app that takes `Disabled` out of Bevy's query filters
+/// (`DefaultQueryFilters::empty()`, before its first update) has Bevy cull
+/// disabled entities as any other: so does the index, which keeps them,
+/// their boxes moving while disabled.
+#[test]
+fn disabled_entities_are_culled_where_the_app_s_queries_see_them() {
+    use bevy_ecs::entity_disabling::DefaultQueryFilters;
+    let mut twins = Twins::new(24);
+    twins.both(|world, _, _| world.insert_resource(DefaultQueryFilters::empty()));
+    for _ in 0..2_000 {
+        twins.spawn_entity();
+    }
+    for kind in [0, 2] {
+        twins.spawn_camera(kind);
+    }
+    let mut disabled_and_seen = 0;
+    for frame in 0..15 {
+        for _ in 0..60 {
+            let pair = twins.entities[twins.rng.below(twins.entities.len())];
+            let disable = twins.rng.below(3) != 0;
+            twins.both(|world, _, side| {
+                let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
+                    return;
+                };
+                if disable {
+                    entity.insert(Disabled);
+                } else {
+                    entity.remove::<Disabled>();
+                }
+            });
+        }
+        twins.update();
+        twins.check(frame);
+        let world = twins.bevy.world_mut();
+        let mut disabled = world.query_filtered::<&ViewVisibility, With<Disabled>>();
+        disabled_and_seen += disabled.iter(world).filter(|v| v.get()).count();
+        twins.mutate();
+    }
+    assert!(
+        disabled_and_seen > 50,
+        "{disabled_and_seen} disabled and seen"
+    );
+}
+
 /// An entity that gets its visibility components after its box is culled
 /// from then on, as Bevy culls it: gaining `InheritedVisibility` and
 /// `ViewVisibility` puts an entity into the set Bevy's culling tests as

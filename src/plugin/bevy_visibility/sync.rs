@@ -6,9 +6,9 @@ use bevy_camera::primitives::Aabb as BevyAabb;
 use bevy_camera::visibility::{
     InheritedVisibility, NoCpuCulling, NoFrustumCulling, ViewVisibility,
 };
-use bevy_ecs::component::ComponentId;
+use bevy_ecs::component::{ComponentId, Components};
 use bevy_ecs::entity::Entities;
-use bevy_ecs::entity_disabling::Disabled;
+use bevy_ecs::entity_disabling::{DefaultQueryFilters, Disabled};
 use bevy_ecs::event::EventPattern;
 use bevy_ecs::lifecycle::HookContext;
 use bevy_ecs::observer::Observer;
@@ -288,7 +288,7 @@ pub(super) fn add_observers(app: &mut bevy_app::App, handles_kept: bool) {
         .add_observer(leave::<Add<NoFrustumCulling>, false>)
         .add_observer(come_back::<Remove<NoCpuCulling>>)
         .add_observer(come_back::<Remove<NoFrustumCulling>>)
-        .add_observer(leave::<Add<Disabled>, false>)
+        .add_observer(leave_when_disabled)
         .add_observer(come_back::<Remove<Disabled>>);
 }
 
@@ -307,6 +307,21 @@ fn leave<P: EventPattern, const BOX_LOST: bool>(
         index::remove_box(entity, &mut index, &sink);
     } else {
         index::remove_from_layer(entity, &mut index, &sink);
+    }
+}
+
+/// Observer: a disabled entity leaves the index where Bevy's queries (its
+/// culling's among them) leave it out, as they do unless the app took
+/// `Disabled` out of `DefaultQueryFilters`.
+fn leave_when_disabled(
+    event: On<Add<Disabled>>,
+    mut index: ResMut<SpatialIndex<Renderable>>,
+    filters: Res<DefaultQueryFilters>,
+    components: &Components,
+    sink: Res<DiagnosticsSink>,
+) {
+    if crate::plugin::disabling::disabled_is_left_out(&filters, components) {
+        index::remove_from_layer(event.entity, &mut index, &sink);
     }
 }
 
