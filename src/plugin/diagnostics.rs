@@ -95,6 +95,7 @@ impl QueryWork {
 /// app.update();
 /// let d = app.world().resource::<SpatialDiagnostics>();
 /// assert_eq!(d.sync.inserted, 1); // SyncWork
+/// assert_eq!(d.sync.runs, 2); // the startup sync's pass and this frame's
 /// assert_eq!(d.culling.runs, 1); // QueryWork
 /// assert!(d.culling.nodes_visited > 0);
 /// assert_eq!(d.maintenance.runs, 0); // MaintenanceWork: nothing to repair yet
@@ -104,7 +105,9 @@ impl QueryWork {
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SyncWork {
-    /// Sync passes that ran (one per layer with indexed entities or changes).
+    /// Sync passes that ran (one per layer with indexed entities or changes;
+    /// the first frame's figures also hold the startup sync's pass, which
+    /// indexes the entities spawned before it, so they count two).
     pub runs: u32,
     /// Entities that entered an index.
     pub inserted: u64,
