@@ -52,6 +52,15 @@ fn app(ours: bool) -> App {
     app
 }
 
+/// Inserts `C` where the entity lacks it, removes it where it has it.
+fn toggle<C: Component + Default>(entity: &mut EntityWorldMut) {
+    if entity.contains::<C>() {
+        entity.remove::<C>();
+    } else {
+        entity.insert(C::default());
+    }
+}
+
 /// Which kind of light a twin pair is.
 #[derive(Clone, Copy)]
 enum LightKind {
@@ -187,12 +196,15 @@ impl Twins {
         self.lights.push((kind, pair));
     }
 
-    /// One frame of random changes, the same in both worlds.
+    /// One frame of random changes, the same in both worlds: the casters
+    /// move, jump, change their markers and boxes, are disabled and
+    /// despawned; the lights move and change; the cameras move, and now and
+    /// then one is turned off or on.
     fn mutate(&mut self) {
         let n = self.casters.len();
         for _ in 0..n / 10 {
             let pair = self.casters[self.rng.below(n)];
-            let action = self.rng.below(16);
+            let action = self.rng.below(22);
             self.both(|world, rng, side| {
                 let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
                     return;
@@ -229,6 +241,37 @@ impl Twins {
                     14 => {
                         entity.insert(random_aabb(rng));
                     }
+                    15 => {
+                        toggle::<NoFrustumCulling>(&mut entity);
+                    }
+                    16 => {
+                        toggle::<NoCpuCulling>(&mut entity);
+                    }
+                    17 => {
+                        toggle::<bevy_ecs::entity_disabling::Disabled>(&mut entity);
+                    }
+                    18 => {
+                        // No box, or one Bevy's tests see as bad.
+                        if rng.below(2) == 0 {
+                            entity.remove::<bevy_camera::primitives::Aabb>();
+                        } else {
+                            entity.insert(bevy_camera::primitives::Aabb {
+                                center: Vec3::ZERO.into(),
+                                half_extents: Vec3::new(-1.0, 1.0, f32::NAN).into(),
+                            });
+                        }
+                    }
+                    19 => {
+                        // A second marker beside the one it may have.
+                        if rng.below(2) == 0 {
+                            entity.insert(VisibilityRange::abrupt(0.0, rng.range(10.0, 80.0)));
+                        } else {
+                            entity.insert(RenderLayers::from_layers(&[0, 1]));
+                        }
+                    }
+                    20 => {
+                        entity.insert(RenderLayers::none());
+                    }
                     _ => {
                         entity.despawn();
                     }
@@ -238,17 +281,55 @@ impl Twins {
         for _ in 0..n / 50 {
             self.spawn_caster();
         }
-        for (_, pair) in self.lights.clone() {
+        for (kind, pair) in self.lights.clone() {
+            let change = self.rng.below(12);
             self.both(|world, rng, side| {
-                let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
+                let mut light = world.entity_mut(pair[side]);
+                let mut t = light.get_mut::<Transform>().unwrap();
                 t.translation += Vec3::new(rng.range(-2.0, 2.0), 0.0, rng.range(-2.0, 2.0));
+                // Now and then the light itself changes: its shadows, its
+                // layers, its range (none at all, too) or its cone.
+                match (change, kind) {
+                    (0, LightKind::Point) => {
+                        let mut point = light.get_mut::<PointLight>().unwrap();
+                        point.shadow_maps_enabled = !point.shadow_maps_enabled;
+                    }
+                    (0, LightKind::Spot) => {
+                        let mut spot = light.get_mut::<SpotLight>().unwrap();
+                        spot.shadow_maps_enabled = !spot.shadow_maps_enabled;
+                    }
+                    (0, LightKind::Directional) => {
+                        let mut sun = light.get_mut::<DirectionalLight>().unwrap();
+                        sun.shadow_maps_enabled = !sun.shadow_maps_enabled;
+                    }
+                    (1, _) => {
+                        let layers = [RenderLayers::layer(0), RenderLayers::layer(1)];
+                        light.insert(layers[rng.below(2)].clone());
+                    }
+                    (2, LightKind::Point) => {
+                        let range = [0.0, rng.range(3.0, 30.0)][rng.below(2)];
+                        light.get_mut::<PointLight>().unwrap().range = range;
+                    }
+                    (2, LightKind::Spot) => {
+                        let mut spot = light.get_mut::<SpotLight>().unwrap();
+                        spot.range = [0.0, rng.range(5.0, 40.0)][rng.below(2)];
+                        spot.outer_angle = rng.range(0.05, 1.5);
+                        spot.inner_angle = spot.inner_angle.min(spot.outer_angle);
+                    }
+                    _ => {}
+                }
             });
         }
         for pair in self.cameras.clone() {
+            let switch = self.rng.below(15) == 0;
             self.both(|world, rng, side| {
                 let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
                 t.translation += Vec3::new(rng.range(-3.0, 3.0), 0.0, rng.range(-3.0, 3.0));
                 t.rotate_y(rng.range(-0.4, 0.4));
+                if switch {
+                    let mut camera = world.get_mut::<Camera>(pair[side]).unwrap();
+                    camera.is_active = !camera.is_active;
+                }
             });
         }
     }
