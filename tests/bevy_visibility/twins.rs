@@ -145,7 +145,7 @@ impl Twins {
         for _ in 0..n / 10 {
             let i = self.rng.below(n);
             let pair = self.entities[i];
-            let action = self.rng.below(20);
+            let action = self.rng.below(22);
             self.both(|world, rng, side| {
                 let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
                     return;
@@ -202,6 +202,17 @@ impl Twins {
                             ),
                         });
                     }
+                    19 => {
+                        if entity.contains::<Disabled>() {
+                            entity.remove::<Disabled>();
+                        } else {
+                            entity.insert(Disabled);
+                        }
+                    }
+                    20 => {
+                        let layers = [RenderLayers::none(), RenderLayers::from_layers(&[0, 1])];
+                        entity.insert(layers[rng.below(2)].clone());
+                    }
                     _ => {
                         entity.despawn();
                     }
@@ -211,12 +222,18 @@ impl Twins {
         for _ in 0..n / 50 {
             self.spawn_entity();
         }
-        // The cameras move and turn.
-        for pair in self.cameras.clone() {
+        // The cameras move and turn, and now and then one but the first is
+        // turned off or on.
+        for (c, pair) in self.cameras.clone().into_iter().enumerate() {
+            let switch = self.rng.below(15) == 0 && c > 0;
             self.both(|world, rng, side| {
                 let mut t = world.get_mut::<Transform>(pair[side]).unwrap();
                 t.translation += Vec3::new(rng.range(-3.0, 3.0), 0.0, rng.range(-3.0, 3.0));
                 t.rotate_y(rng.range(-0.4, 0.4));
+                if switch {
+                    let mut camera = world.get_mut::<Camera>(pair[side]).unwrap();
+                    camera.is_active = !camera.is_active;
+                }
             });
         }
     }
@@ -287,7 +304,15 @@ impl Twins {
         let settled = classes.iter().all(|c| self.classes_seen.contains(c));
         for (c, (b, o)) in bevy_lists.iter().zip(&our_lists).enumerate() {
             assert_eq!(b.1, o.1, "frame {frame}: camera {c}'s visible entities");
-            if settled {
+            // An inactive camera keeps the lists of the last frame it was
+            // active in, which may be the first frame of a class.
+            let active = self
+                .bevy
+                .world()
+                .get::<Camera>(self.cameras[c][0])
+                .unwrap()
+                .is_active;
+            if settled && active {
                 assert_eq!(b.0, o.0, "frame {frame}: camera {c}'s classes");
             }
         }
