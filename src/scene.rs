@@ -303,7 +303,7 @@ impl TownScene {
             for col in 0..40 {
                 let sx = ((col as f32 + 0.5) / 40.0 * 2.0 - 1.0) * tan_x;
                 let sy = ((row as f32 + 0.5) / 25.0 * 2.0 - 1.0) * tan_y;
-                let dir = rotation * Vec3::new(sx, sy, -1.0).normalize();
+                let dir = rotation * crate::geometry::unit_or_nan(Vec3::new(sx, sy, -1.0));
                 rays.push(Ray {
                     origin: Self::eye(),
                     dir,

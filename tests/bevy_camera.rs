@@ -160,6 +160,15 @@ impl log::Log for CapturedWarnings {
     fn flush(&self) {}
 }
 
+/// Installs the capturing logger, once for the whole test binary.
+fn capture_warnings() {
+    static INSTALL: std::sync::Once = std::sync::Once::new();
+    INSTALL.call_once(|| {
+        log::set_logger(&CapturedWarnings).expect("no other logger in this test binary");
+        log::set_max_level(log::LevelFilter::Warn);
+    });
+}
+
 /// The warnings so far that name `entity`.
 fn warnings_about(entity: bevy_ecs::entity::Entity) -> usize {
     let name = entity.to_string();
@@ -175,11 +184,7 @@ fn warnings_about(entity: bevy_ecs::entity::Entity) -> usize {
 #[test]
 fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     use bevy_ecs::schedule::ScheduleLabel;
-    static INSTALL: std::sync::Once = std::sync::Once::new();
-    INSTALL.call_once(|| {
-        log::set_logger(&CapturedWarnings).expect("no other logger in this test binary");
-        log::set_max_level(log::LevelFilter::Warn);
-    });
+    capture_warnings();
     let mut app = App::new();
     app.add_plugins(SpatialIndexPlugin {
         schedule: Update.intern(),
@@ -216,10 +221,48 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     for _ in 0..3 {
         *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = broken;
         app.update();
+        let diagnostics = app.world().resource::<SpatialDiagnostics>();
+        assert_eq!(diagnostics.culling.refused, 1, "counted every frame");
     }
     assert_eq!(warnings_about(camera), 1);
     let kept = app.world().get::<CullingCamera>(camera).unwrap();
     assert_eq!(kept.frustum, expected);
+}
+
+/// A caster whose ray is refused in world space (its entity scaled to
+/// nothing on an axis) is counted in the diagnostics every frame and
+/// warned about once; the caster beside it is not.
+#[test]
+fn a_refused_caster_is_counted_every_frame_and_warned_about_once() {
+    use bevy_rtree::{Ray, RayMode, SpatialError};
+    capture_warnings();
+    let mut app = App::new();
+    app.add_plugins((
+        bevy_transform::TransformPlugin,
+        SpatialIndexPlugin::default(),
+    ));
+    let ray = Ray::new(Vec3::ZERO, Vec3::X, 10.0).unwrap();
+    let flat = app
+        .world_mut()
+        .spawn((
+            RayCaster::new(ray, RayMode::First),
+            Transform::from_scale(Vec3::new(0.0, 1.0, 1.0)),
+        ))
+        .id();
+    let fine = app
+        .world_mut()
+        .spawn((RayCaster::new(ray, RayMode::First), Transform::IDENTITY))
+        .id();
+    for _ in 0..3 {
+        app.update();
+        let diagnostics = app.world().resource::<SpatialDiagnostics>();
+        assert_eq!(diagnostics.rays.refused, 1);
+        assert_eq!(diagnostics.rays.queries, 2);
+    }
+    let hits = app.world().get::<RayCasterHits>(flat).unwrap();
+    assert_eq!(hits.error(), Some(SpatialError::InvalidRay));
+    assert_eq!(warnings_about(flat), 1);
+    assert_eq!(warnings_about(fine), 0);
 }
 
 /// An entity that stops following (`FollowBevyFrustum` or its `Frustum`
@@ -316,6 +359,17 @@ fn a_bevy_camera_with_an_infinite_far_plane_is_followed() {
         .compute_frustum(&GlobalTransform::from(nan_at));
         assert!(bevy_rtree::Frustum::from_bevy(&broken, Vec3::ZERO).is_err());
     }
+    // A NaN far distance gives a far plane of NaN offset, as an infinite
+    // one does along an axis; turned, its normal has no zero and it can be
+    // told apart: refused, not taken for no far plane.
+    let turned = Transform::from_rotation(Quat::from_euler(glam::EulerRot::YXZ, 0.7, 0.35, 0.0));
+    let nan_far = PerspectiveProjection {
+        far: f32::NAN,
+        ..PerspectiveProjection::default()
+    }
+    .compute_frustum(&GlobalTransform::from(turned));
+    assert!(nan_far.half_spaces[5].d().is_nan());
+    assert!(bevy_rtree::Frustum::from_bevy(&nan_far, Vec3::ZERO).is_err());
 
     for turn in [0.0, 0.7] {
         let mut app = App::new();
@@ -373,4 +427,21 @@ fn bevy_boxes_convert_to_boxes_that_contain_them() {
     // above 1, so the box must reach past 1.
     assert!(ours.max.x > 1.0, "{ours:?}");
     assert!(ours.min.x <= -1.0 + 1e-17, "{ours:?}");
+    // Exact corners at `MAX_COORD` itself are a valid box; rounded outward
+    // they would pass the bound.
+    let edge = bevy_rtree::MAX_COORD;
+    let widest = BevyAabb {
+        center: glam::Vec3A::ZERO,
+        half_extents: glam::Vec3A::splat(edge),
+    };
+    assert_eq!(
+        Aabb::try_from(&widest),
+        Aabb::new(Vec3::splat(-edge), Vec3::splat(edge))
+    );
+    // Past it, refused.
+    let wider = BevyAabb {
+        center: glam::Vec3A::ZERO,
+        half_extents: glam::Vec3A::splat(edge * 1.01),
+    };
+    assert!(Aabb::try_from(&wider).is_err());
 }

@@ -29,19 +29,19 @@ impl TryFrom<&BevyAabb> for Aabb {
     /// # Ok::<(), bevy_rtree::SpatialError>(())
     /// ```
     fn try_from(aabb: &BevyAabb) -> Result<Aabb, SpatialError> {
-        Aabb::from_oriented(
-            aabb.center.into(),
-            aabb.half_extents.into(),
-            &Affine3A::IDENTITY,
-        )
-        .map(|outward| {
-            // Where the corners are exact in `f32`, keep them so.
-            let (min, max) = (Vec3::from(aabb.min()), Vec3::from(aabb.max()));
-            let (c, h) = (Vec3::from(aabb.center), Vec3::from(aabb.half_extents));
-            let exact = (0..3)
-                .all(|i| sum_is_exactly(c[i], -h[i], min[i]) && sum_is_exactly(c[i], h[i], max[i]));
-            if exact { Aabb { min, max } } else { outward }
-        })
+        // Where the corners are exact in `f32`, they are the box: kept so,
+        // up to `MAX_COORD` itself, which the outward rounding would pass.
+        let (min, max) = (Vec3::from(aabb.min()), Vec3::from(aabb.max()));
+        let (c, h) = (Vec3::from(aabb.center), Vec3::from(aabb.half_extents));
+        let exact = (0..3)
+            .all(|i| sum_is_exactly(c[i], -h[i], min[i]) && sum_is_exactly(c[i], h[i], max[i]));
+        if exact
+            && h.cmpge(Vec3::ZERO).all()
+            && let Ok(exact) = Aabb::new(min, max)
+        {
+            return Ok(exact);
+        }
+        Aabb::from_oriented(c, h, &Affine3A::IDENTITY)
     }
 }
 
@@ -94,10 +94,12 @@ impl Frustum {
         // Bevy's infinite far plane (`far: f32::INFINITY`) never culls in
         // its tests: it is stored as `(n, +inf)`, as `(n, NaN)` with a
         // finite `n` that has a zero, or as `(NaN, +inf)`. A NaN in any
-        // other plane (a camera at a NaN position or turned by a NaN) is
-        // still refused.
+        // other plane (a camera at a NaN position or turned by a NaN), and
+        // a NaN far distance (which gives `(n, NaN)` whatever `n`, so only
+        // where `n` has no zero can it be told apart), are refused.
         let (normal, d) = planes[FAR_PLANE];
-        if d == f32::INFINITY || (d.is_nan() && normal.is_finite()) {
+        let has_a_zero = normal.cmpeq(Vec3::ZERO).any();
+        if d == f32::INFINITY || (d.is_nan() && normal.is_finite() && has_a_zero) {
             planes[FAR_PLANE] = (Vec3::ZERO, f32::INFINITY);
         }
         Frustum::from_world_planes(eye, planes)

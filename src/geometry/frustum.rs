@@ -264,10 +264,12 @@ impl Frustum {
         // underflows nor overflows `f32`.
         let raw = glam::Vec4::from(rotation);
         let largest = raw.abs().max_element();
-        if !(largest.is_finite() && largest > 0.0) {
+        // (`max_element` passes over a NaN: the components are checked.)
+        if !(raw.is_finite() && largest > 0.0) {
             return Err(SpatialError::InvalidFrustum);
         }
-        let rotation = Quat::from_vec4((raw / largest).normalize());
+        let scaled = raw / largest;
+        let rotation = Quat::from_vec4(scaled * scaled.length_recip());
         let forward = rotation * Vec3::NEG_Z;
         let up = rotation * Vec3::Y;
         let right = rotation * Vec3::X;
@@ -276,7 +278,7 @@ impl Frustum {
         // Side planes pass through the eye, so their eye-relative offset is 0.
         // Each inward normal is the forward axis tilted against the side axis.
         let side = |axis: Vec3, tan: f32| HalfSpace {
-            normal: (forward * tan + axis).normalize(),
+            normal: super::unit_or_nan(forward * tan + axis),
             offset: 0.0,
         };
         let far_plane = if far.is_finite() {

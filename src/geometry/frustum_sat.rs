@@ -259,8 +259,8 @@ fn common_perpendicular(planes: &[(DVec3, f64)]) -> Option<DVec3> {
         .enumerate()
         .flat_map(|(i, a)| planes[i + 1..].iter().map(move |b| a.0.cross(b.0)))
         .filter(|edge| edge.length_squared() > 0.0)
-        .max_by(|a, b| a.length_squared().total_cmp(&b.length_squared()))?
-        .normalize();
+        .max_by(|a, b| a.length_squared().total_cmp(&b.length_squared()))
+        .map(super::unit_or_nan_f64)?;
     let spans_space = planes
         .iter()
         .any(|(n, _)| n.dot(line).abs() > LINE_TOLERANCE * n.length());

@@ -180,6 +180,7 @@ fn follow_bevy_frustums<L: Component>(
         )>,
     >,
     mut warned: Local<bevy_ecs::entity::EntityHashSet>,
+    sink: Res<super::diagnostics::DiagnosticsSink>,
 ) {
     for (entity, frustum, global, follow, culling) in &mut cameras {
         // Bevy's frustum as its required component makes it, before Bevy's
@@ -193,9 +194,11 @@ fn follow_bevy_frustums<L: Component>(
             continue;
         }
         let Some(converted) = convert(frustum, global.translation()) else {
+            sink.add(|d| d.culling.refused += 1);
             if warned.insert(entity) {
                 log::warn!(
-                    "{entity}: its Bevy frustum is not finite; keeping the last culling frustum"
+                    "{entity}: its Bevy frustum is refused (a NaN plane, or an eye beyond \
+                     MAX_COORD); keeping the last culling frustum"
                 );
             }
             continue;

@@ -112,10 +112,12 @@ impl<L: Component> CullingCamera<L> {
 /// frame in
 /// [`SpatialIndexSystems::Queries`](super::SpatialIndexSystems::Queries); the
 /// list's allocation is reused from frame to frame. When the entity loses
-/// its `CullingCamera<L>`, the list goes too, so that it never names
-/// entities that no longer exist. A disabled camera does not cull: its list
-/// is the one from before it was disabled until it is enabled again, as
-/// Bevy leaves a disabled camera's `VisibleEntities`.
+/// its `CullingCamera<L>`, the list goes too. The list is the stored answer
+/// of the frame's cull ([contract S9](crate::contract)): an entity despawned
+/// after it is still named until the next cull. A disabled (or inactive)
+/// camera does not cull: its list is the one from before it was disabled
+/// until it is enabled again, as Bevy leaves a disabled camera's
+/// `VisibleEntities`, and may name entities despawned since.
 ///
 /// ```
 /// use bevy_app::prelude::*;

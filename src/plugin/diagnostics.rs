@@ -45,6 +45,12 @@ pub struct QueryWork {
     pub nodes_visited: u64,
     /// Entries tested against the exact predicate.
     pub entries_tested: u64,
+    /// Queries refused as invalid this frame, each logged once per entity
+    /// as well: a caster whose ray is not valid in world space (a zero
+    /// scale, a NaN transform; its `RayCasterHits` holds the error), a
+    /// followed Bevy frustum the crate refuses (the camera keeps its last
+    /// frustum).
+    pub refused: u64,
 }
 
 impl QueryWork {

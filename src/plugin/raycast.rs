@@ -152,10 +152,12 @@ impl<L: Component> RayCaster<L> {
 ///
 /// One answer per layer: an entity with casters of two layers has a
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
-/// `RayCaster<L>`, the answer goes too, so that it never names entities
-/// that no longer exist. A disabled caster is not cast: its answer is the
-/// one from before it was disabled until it is enabled again, as Bevy
-/// leaves a disabled camera's `VisibleEntities`.
+/// `RayCaster<L>`, the answer goes too. The answer is the stored result of
+/// the frame's cast ([contract S9](crate::contract)): an entity despawned
+/// after it is still named until the next cast. A disabled caster is not
+/// cast: its answer is the one from before it was disabled until it is
+/// enabled again, as Bevy leaves a disabled camera's `VisibleEntities`,
+/// and may name entities despawned since.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -272,6 +274,8 @@ pub(crate) struct RayScratch {
     modes: Vec<RayMode>,
     rays: Vec<Ray>,
     results: RayResults<Entity>,
+    /// Casters whose ray was refused and logged, until it is valid again.
+    warned: bevy_ecs::entity::EntityHashSet,
 }
 
 /// Where a caster is: its `GlobalTransform`, if it has one (feature `bevy`).
@@ -307,12 +311,14 @@ pub(crate) fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
     // underflows nor loses its reflection, as a split into scale and
     // rotation in `f32` would; a collapsed axis gives NaN, an invalid ray.
     let m = transform.affine().matrix3.as_dmat3();
-    let turned = m.x_axis.normalize() * unit.x
-        + m.y_axis.normalize() * unit.y
-        + m.z_axis.normalize() * unit.z;
+    // (Not glam's `normalize`, which panics on such an axis where glam's
+    // assertions are on.)
+    let unit_of = crate::geometry::unit_or_nan_f64;
+    let turned =
+        unit_of(m.x_axis) * unit.x + unit_of(m.y_axis) * unit.y + unit_of(m.z_axis) * unit.z;
     Ray {
         origin: transform.transform_point(ray.origin),
-        dir: turned.normalize().as_vec3(),
+        dir: unit_of(turned).as_vec3(),
         max_t: (f64::from(ray.max_t) * length) as f32,
     }
 }
@@ -335,7 +341,7 @@ pub(crate) fn cast_rays<L: Component>(
 ) {
     let scratch = &mut *scratch;
     let tree = index.tree();
-    let mut cast = 0;
+    let (mut cast, mut refused) = (0, 0);
     scratch.modes.clear();
     for (_, caster, _) in &casters {
         if !scratch.modes.contains(&caster.mode) {
@@ -371,9 +377,19 @@ pub(crate) fn cast_rays<L: Component>(
             answer.any = false;
             answer.error = None;
             let hits = match scratch.results.hits(i) {
-                Ok(hits) => hits,
+                Ok(hits) => {
+                    scratch.warned.remove(&entity);
+                    hits
+                }
                 Err(error) => {
                     answer.error = Some(error);
+                    refused += 1;
+                    if scratch.warned.insert(entity) {
+                        log::warn!(
+                            "{entity}: its RayCaster's ray is refused in world space ({error}): \
+                             a zero scale or a NaN transform? Its RayCasterHits holds the error"
+                        );
+                    }
                     continue;
                 }
             };
@@ -419,5 +435,6 @@ pub(crate) fn cast_rays<L: Component>(
     sink.add(|d| {
         d.rays.record(cast, &mut scratch.workspace);
         d.rays.add_walks(&mut scratch.single);
+        d.rays.refused += refused;
     });
 }
