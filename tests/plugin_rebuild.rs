@@ -144,3 +144,70 @@ fn a_tiny_budget_still_finishes_rebuilds() {
     // entries takes about a hundred frames.
     assert!(teleporting_scene(plugin, 600, 250, 1) >= 1);
 }
+
+/// A rebuild's work out on the task pool when a spawn wave arrives (more
+/// new entities than indexed ones: loaded in bulk, which retiles the tree
+/// and drops the rebuild) is let go by that frame's maintenance, in a
+/// scene that then stands still: the maintenance runs once for it, then
+/// no more. It used to stop at once, the finished work (a whole second
+/// structure) left waiting in it.
+#[cfg(feature = "parallel")]
+#[test]
+fn work_away_dropped_by_a_spawn_wave_is_let_go() {
+    bevy_tasks::AsyncComputeTaskPool::get_or_init(|| {
+        bevy_tasks::TaskPoolBuilder::new().num_threads(2).build()
+    });
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin {
+        rebuild: RebuildMode::OnTaskPool,
+        ..SpatialIndexPlugin::default()
+    });
+    let mut rng = SceneRng::new(5);
+    let entities: Vec<Entity> = (0..2_000)
+        .map(|_| {
+            app.world_mut()
+                .spawn(SpatialBounds(random_box(&mut rng)))
+                .id()
+        })
+        .collect();
+    app.update();
+    // Teleports until a rebuild starts: its work goes out that frame.
+    let mut frames = 0;
+    while !app
+        .world()
+        .resource::<SpatialIndex>()
+        .tree()
+        .rebuild_pending()
+    {
+        for &entity in &entities {
+            if rng.below(10) == 0 {
+                app.world_mut().get_mut::<SpatialBounds>(entity).unwrap().0 = random_box(&mut rng);
+            }
+        }
+        app.update();
+        frames += 1;
+        assert!(frames < 200, "no rebuild started");
+    }
+    // The wave, loaded in bulk: the rebuild is dropped by the sync, and the
+    // maintenance of that frame runs for the work still out and lets it go;
+    // after it, a still scene needs none.
+    for _ in 0..2_500 {
+        app.world_mut().spawn(SpatialBounds(random_box(&mut rng)));
+    }
+    let runs: Vec<u32> = (0..4)
+        .map(|_| {
+            app.update();
+            let diagnostics = app.world().resource::<SpatialDiagnostics>();
+            diagnostics.maintenance.runs
+        })
+        .collect();
+    let index = app.world().resource::<SpatialIndex>();
+    assert!(!index.tree().rebuild_pending());
+    assert_eq!(runs, [1, 0, 0, 0], "once to let the work go, then still");
+    let oracle = layer_oracle::<SpatialBounds>(app.world_mut());
+    let index = app.world().resource::<SpatialIndex>();
+    index.validate().unwrap();
+    assert_eq!(index.len(), 4_500);
+    let query = random_box(&mut rng).grown(Vec3::splat(50.0));
+    assert_eq!(index.tree().overlapping(&query), oracle.overlapping(&query));
+}

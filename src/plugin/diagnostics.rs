@@ -151,7 +151,9 @@ pub struct SyncWork {
 #[cfg_attr(feature = "reflect", reflect(Debug, PartialEq, Clone))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MaintenanceWork {
-    /// Maintenance passes that ran (only where a layer had something to repair).
+    /// Maintenance passes that ran (only where a layer had something to
+    /// repair, a rebuild to start or advance, or a rebuild's work out on the
+    /// task pool).
     pub runs: u32,
     /// Nodes re-tiled.
     pub nodes_repacked: u64,

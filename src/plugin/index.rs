@@ -63,6 +63,10 @@ pub struct SpatialIndex<L: Component = SpatialBounds> {
     /// tick of its own; the index's own tick lets the second start where
     /// the first ended, instead of reading every startup box again.
     synced_at: Option<Tick>,
+    /// Whether a rebuild's work is out on the task pool: the maintenance
+    /// runs until it is back (or let go), whatever else it has to do, so
+    /// that no finished work waits in it with a whole second structure.
+    pub(crate) rebuild_away: bool,
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -77,6 +81,7 @@ impl<L: Component> SpatialIndex<L> {
             generation: 0,
             watched_disabling: Vec::new(),
             synced_at: None,
+            rebuild_away: false,
             _layer: PhantomData,
         }
     }

@@ -121,9 +121,17 @@ pub(crate) fn maintain_layer<L: Component>(
         Some(place) => keep_fresh(tree, place, &mut away),
         None => {
             tree.cancel_rebuild();
+            #[cfg(feature = "parallel")]
+            {
+                away.task = None;
+            }
             false
         }
     };
+    #[cfg(feature = "parallel")]
+    {
+        index.rebuild_away = away.task.is_some();
+    }
     sink.add(|d| {
         d.maintenance.runs += 1;
         d.maintenance.nodes_repacked += repacked as u64;
@@ -131,14 +139,15 @@ pub(crate) fn maintain_layer<L: Component>(
     });
 }
 
-/// Run condition: the layer has degraded leaves waiting for repair, or a
-/// rebuild to start or to advance.
+/// Run condition: the layer has degraded leaves waiting for repair, a
+/// rebuild to start or to advance, or a rebuild's work out on the pool.
 pub(crate) fn needs_maintenance<L: Component>(
     index: Res<SpatialIndex<L>>,
     settings: Res<SpatialIndexConfig>,
 ) -> bool {
     let tree = &index.tree;
     tree.pending_repairs() > 0
+        || index.rebuild_away
         || (settings.rebuild.here().is_some() && (tree.rebuild_pending() || tree.is_worn()))
 }
 
@@ -147,6 +156,13 @@ pub(crate) fn needs_maintenance<L: Component>(
 /// Returns whether a rebuild was swapped in.
 fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bool {
     #[cfg(feature = "parallel")]
+    if !tree.rebuild_pending() {
+        // The rebuild was dropped meanwhile (a bulk insert of a spawn wave
+        // retiles the tree itself): its work is let go, finished or not
+        // (dropping the task cancels what has not started).
+        away.task = None;
+    }
+    #[cfg(feature = "parallel")]
     if let Some(task) = &mut away.task {
         if !task.is_finished() {
             // The step only counts the frame: the catch-up after the work
@@ -154,8 +170,8 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
             return tree.step_rebuild(Duration::ZERO);
         }
         let work = bevy_tasks::block_on(away.task.take().unwrap());
-        // Refused if the rebuild was dropped meanwhile (a bulk insert of
-        // a spawn wave retiles the tree itself); a worn tree starts another.
+        // Refused if the rebuild was dropped and started again meanwhile;
+        // a worn tree starts another.
         away.back = tree.finish_rebuild_work(work);
     }
     #[cfg(not(feature = "parallel"))]
