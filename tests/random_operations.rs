@@ -15,7 +15,7 @@ use bevy_rtree::oracle::BruteForce;
 use bevy_rtree::scene::SceneRng;
 use bevy_rtree::{
     Aabb, CullMode, Frustum, HalfSpace, JoinMode, MAX_COORD, ProxyId, QueryWorkspace, RTree, Ray,
-    RayMode, RayResults, SpatialError, TreeSettings,
+    RayMode, RayResults, RebuildWork, SpatialError, TreeSettings,
 };
 use glam::{Quat, Vec3};
 
@@ -110,6 +110,11 @@ struct Model {
     /// point, first hit, a view, the self join (a run whose answers were
     /// all empty would check little).
     answered: [usize; 5],
+    /// A rebuild's work taken out of the tree (as if on another thread),
+    /// run or not yet, while the tree answers and changes.
+    away: Option<RebuildWork<u32>>,
+    /// Works that came back and were accepted.
+    came_back: usize,
 }
 
 impl Model {
@@ -138,7 +143,7 @@ impl Model {
     /// One random mutation, or a refused one that must change nothing.
     fn step(&mut self) {
         let profile = self.profile;
-        match self.rng.below(23) {
+        match self.rng.below(25) {
             0..=4 => {
                 let aabb = random_box(&mut self.rng, profile);
                 self.insert(aabb);
@@ -203,6 +208,32 @@ impl Model {
                     self.tree.cancel_rebuild();
                 } else {
                     self.tree.step_rebuild_units(1);
+                }
+            }
+            23 => {
+                // The rebuild's work goes out, run at once or later.
+                if self.away.is_none() {
+                    if !self.tree.rebuild_pending() {
+                        self.tree.start_rebuild();
+                    }
+                    self.away = self.tree.take_rebuild_work();
+                    if self.rng.below(2) == 0
+                        && let Some(work) = &mut self.away
+                    {
+                        work.run();
+                    }
+                }
+            }
+            24 => {
+                // The work comes back: accepted if its rebuild is still the
+                // one under way (not dropped meanwhile by a bulk insert, a
+                // `rebuild`, a clear or a cancel).
+                if let Some(mut work) = self.away.take() {
+                    work.run();
+                    let pending = self.tree.rebuild_pending();
+                    let accepted = self.tree.finish_rebuild_work(work);
+                    assert!(!accepted || pending);
+                    self.came_back += usize::from(accepted);
                 }
             }
             17 => {
@@ -503,6 +534,8 @@ fn soak(steps: usize, seed: u64) {
             profile,
             rng: SceneRng::new(seed + p as u64),
             answered: [0; 5],
+            away: None,
+            came_back: 0,
         };
         let mut swaps = 0;
         // On until a rebuild was swapped in, up to four times the steps:
@@ -524,8 +557,10 @@ fn soak(steps: usize, seed: u64) {
                 panic!("{profile:?}, seed {seed}, step {step}: see the failure above");
             }
         }
-        // Rebuilds were swapped in among the other operations.
+        // Rebuilds were swapped in among the other operations, and work
+        // taken out came back to be swapped in.
         assert!(swaps >= 1, "{profile:?}: {swaps} rebuilds swapped in");
+        assert!(model.came_back >= 1, "{profile:?}: no work came back");
         let answered = model.answered;
         assert!(
             answered.iter().all(|&n| n > 0),
