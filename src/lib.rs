@@ -185,7 +185,8 @@
 //! the measurement that justifies it: the cache prefetch hint in
 //! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
 //! because they measured 10–20 % faster with it; the calls from the
-//! single-ray walk (`query/ray.rs`) into its twins compiled for AVX and
+//! single-ray walk (`query/ray.rs`) and from a batch's pairs of rays from
+//! one point (`query/ray_batch.rs`) into their twins compiled for AVX and
 //! AVX-512 (`query/ray_avx.rs`, `query/ray_avx512.rs`), made only once a
 //! run-time check has found those instructions (rays 11–15 % faster), with
 //! the AVX-512 walk's placing of children, an `unsafe fn` so that it can

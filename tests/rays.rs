@@ -99,6 +99,8 @@ proptest! {
         check_rays(&tree, &oracle, &rays);
         let (tree, oracle) = build::<8>(&boxes);
         check_rays(&tree, &oracle, &rays);
+        let (tree, oracle) = build::<12>(&boxes);
+        check_rays(&tree, &oracle, &rays);
     }
 }
 

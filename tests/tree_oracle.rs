@@ -269,6 +269,13 @@ proptest! {
         run::<8>(TreeSettings::default(), &ops);
     }
 
+    /// A width that is a multiple of four but of no wider lane test: the
+    /// four-lane paths alone.
+    #[test]
+    fn width_12_matches_oracle_after_every_operation(ops in ops()) {
+        run::<12>(TreeSettings::default(), &ops);
+    }
+
     /// The default width with the default settings.
     #[test]
     fn width_16_matches_oracle_after_every_operation(ops in ops()) {

@@ -28,6 +28,8 @@ mod ray_avx512;
 mod ray_batch;
 mod ray_lanes;
 mod ray_origin;
+#[cfg(test)]
+mod ray_pair_tests;
 mod ray_results;
 mod sphere;
 mod workspace;

@@ -19,8 +19,10 @@
 //! the four-lane walk.
 //!
 //! Calling a function compiled for AVX-512 is `unsafe` (see
-//! `join_avx512.rs`); the crate's call of this walk is in `RTree::walk_one`,
-//! made only after [`walk_is_avx512`] has found AVX-512 and `popcnt`.
+//! `join_avx512.rs`); the crate's calls of these walks are in
+//! `RTree::walk_one` and, for two rays from one point, in `ray_batch.rs`'s
+//! `pair_from`, each made only after [`walk_is_avx512`] has found AVX-512
+//! and `popcnt` for its rays.
 
 use std::arch::x86_64::{
     _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_extractf32x4_ps,
@@ -108,7 +110,9 @@ pub(super) fn avx512_ray_lanes<const W: usize>(
 /// # Safety
 ///
 /// The processor must have AVX-512 (its foundation instructions) and
-/// `popcnt`, as for a function compiled with them enabled.
+/// `popcnt`, as for a function compiled with them enabled. (`W` must be a
+/// multiple of sixteen too; another width panics, as a slice out of range
+/// does, and reads nothing it should not.)
 #[inline(always)]
 #[allow(unsafe_code)]
 pub(super) unsafe fn push_far_to_near_ranked<const W: usize>(

@@ -421,13 +421,22 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     }
 
     /// Rays `a` and `b` of a batch through the subtree of `start` in lock
-    /// step, recording their hits as [`RTree::single_from`] does. Call it
-    /// only where [`RTree::may_walk_paired`] allows.
+    /// step, recording their hits as [`RTree::single_from`] does, where
+    /// [`RTree::may_walk_paired`] allows (else one after the other).
     fn pair_from(&self, start: u32, [a, b]: [usize; 2], mode: RayMode, ws: &mut QueryWorkspace) {
         #[cfg(target_arch = "x86_64")]
         {
             let s = &mut ws.rays;
             let (test_a, test_b) = (s.tests[a], s.tests[b]);
+            // The run-time check again (cached, cheap): the AVX-512 walk
+            // below is reached only where it found those instructions,
+            // whoever calls this.
+            let avx512 = super::ray_avx512::walk_is_avx512::<W>;
+            if !(avx512(&test_a) && avx512(&test_b)) {
+                self.single_from(start, a, mode, ws);
+                self.single_from(start, b, mode, ws);
+                return;
+            }
             let limits = [s.limits[a], s.limits[b]];
             if let (Ok([best_a, best_b]), Ok([found_a, found_b])) = (
                 s.best.get_disjoint_mut([a, b]),
@@ -442,9 +451,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                 } = &mut walk;
                 let (tests, stacks) = ([&test_a, &test_b], [stack, partner_stack]);
                 let stats = &mut ws.stats;
-                // SAFETY: `may_walk_paired` found the AVX-512 walk for both
-                // rays, which requires the standard library's run-time
-                // check to have found AVX-512 and `popcnt`.
+                // SAFETY: `walk_is_avx512` (just above) found the AVX-512
+                // walk for both rays, which requires the standard library's
+                // run-time check to have found AVX-512 and `popcnt`.
                 #[allow(unsafe_code)]
                 let walked = match mode {
                     RayMode::First => Some(unsafe {

@@ -11,7 +11,7 @@
 //! - `cut_axis`: which axis each median cut of a tiling takes;
 //! - `optimize`: local repacking of churned subtrees;
 //! - `prefetch`: cache hints for box queries, batched moves and repacks
-//!   (the crate's only `unsafe`);
+//!   (the tree's only `unsafe`; the queries' SIMD twins have the rest);
 //! - `validate`: the invariant checker of [contract S10](crate::contract).
 
 mod bulk;
