@@ -16,6 +16,8 @@ mod frustum_candidates;
 #[cfg(feature = "bevy_light")]
 mod lights;
 mod orders;
+#[cfg(test)]
+mod proof_tests;
 mod radix;
 mod rows;
 mod storage_order;
