@@ -176,3 +176,72 @@ fn view_visibility_keeps_no_summary_tick() {
     let info = world.components().get_info(id).unwrap();
     assert!(!info.summary_tick());
 }
+
+/// Where the app moves an entity (writes its `GlobalTransform`) after
+/// transform propagation: ordered before `RenderableSyncSystems`, as its
+/// docs ask, the index sees the move in the same frame as Bevy's culling;
+/// ordered after it (but before the culling), the index sees it a frame
+/// late, the documented difference: that frame the entity is still seen
+/// where it was, and from the next frame on both agree.
+#[test]
+fn a_move_after_the_sync_is_seen_a_frame_late_and_before_it_at_once() {
+    use bevy_camera::visibility::VisibilitySystems;
+    use bevy_rtree::plugin::RenderableSyncSystems;
+    use bevy_transform::TransformSystems;
+
+    #[derive(Resource, Default)]
+    struct Away(bool);
+
+    /// Puts every box behind the camera once `Away` is set.
+    fn send_away(away: Res<Away>, mut moved: Query<&mut GlobalTransform, With<Aabb>>) {
+        if away.0 {
+            for mut at in &mut moved {
+                *at = GlobalTransform::from_xyz(0.0, 0.0, 50.0);
+            }
+        }
+    }
+
+    for before_the_sync in [true, false] {
+        let [mut bevy, mut ours] = [app(false), app(true)];
+        let mesh = [&mut bevy, &mut ours].map(|app| {
+            let late = send_away
+                .after(TransformSystems::Propagate)
+                .before(VisibilitySystems::CheckVisibility);
+            if before_the_sync {
+                app.add_systems(PostUpdate, late.before(RenderableSyncSystems));
+            } else {
+                app.add_systems(PostUpdate, late.after(RenderableSyncSystems));
+            }
+            app.init_resource::<Away>();
+            let world = app.world_mut();
+            world.spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0)));
+            world
+                .spawn((
+                    Mesh3d::default(),
+                    Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+                    Transform::default(),
+                ))
+                .id()
+        });
+        let seen = |app: &App, entity| app.world().get::<ViewVisibility>(entity).unwrap().get();
+        bevy.update();
+        ours.update();
+        assert!(seen(&bevy, mesh[0]) && seen(&ours, mesh[1]), "in view");
+        for app in [&mut bevy, &mut ours] {
+            app.insert_resource(Away(true));
+            app.update();
+        }
+        assert!(!seen(&bevy, mesh[0]), "Bevy culls it at once");
+        assert_eq!(
+            seen(&ours, mesh[1]),
+            !before_the_sync,
+            "ordered before the sync: at once; after it: a frame late"
+        );
+        bevy.update();
+        ours.update();
+        assert!(
+            !seen(&bevy, mesh[0]) && !seen(&ours, mesh[1]),
+            "both, a frame on"
+        );
+    }
+}
