@@ -376,10 +376,34 @@ impl Model {
             tree.within_radius(point, radius),
             self.oracle.within_radius(point, radius)
         );
-        assert_eq!(
-            tree.nearest(point, 4, None),
-            self.oracle.nearest(point, 4, None)
-        );
+        let nearest = self.oracle.nearest(point, 4, None);
+        assert_eq!(tree.nearest(point, 4, None), nearest);
+        // A radius and a limit exactly at the fourth nearest entry's
+        // distance (rounded up to `f32`): at the boundary, in a pruned
+        // tree, at every profile's magnitudes.
+        if let Ok(found) = &nearest
+            && let Some(last) = found.last()
+        {
+            let exact = last.distance();
+            let at = exact as f32;
+            let at = if f64::from(at) < exact {
+                at.next_up()
+            } else {
+                at
+            };
+            let within = self.oracle.within_radius(point, at);
+            assert!(
+                within
+                    .as_ref()
+                    .is_ok_and(|w| w.iter().any(|n| n.key == last.key))
+            );
+            assert_eq!(tree.within_radius(point, at), within, "radius {at}");
+            assert_eq!(
+                tree.nearest(point, 8, Some(at)),
+                self.oracle.nearest(point, 8, Some(at)),
+                "limit {at}"
+            );
+        }
         // The sorted form, and the visit order of the `_into` form sorted.
         let in_sphere = self.oracle.overlapping_sphere(point, radius);
         assert_eq!(tree.overlapping_sphere(point, radius), in_sphere);
