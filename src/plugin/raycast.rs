@@ -378,7 +378,10 @@ pub(crate) fn cast_rays<L: Component>(
             answer.error = None;
             let hits = match scratch.results.hits(i) {
                 Ok(hits) => {
-                    scratch.warned.remove(&entity);
+                    // (Usually empty: no look-up per caster and frame.)
+                    if !scratch.warned.is_empty() {
+                        scratch.warned.remove(&entity);
+                    }
                     hits
                 }
                 Err(error) => {
