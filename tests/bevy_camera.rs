@@ -169,11 +169,14 @@ fn capture_warnings() {
     });
 }
 
-/// The warnings so far that name `entity`.
-fn warnings_about(entity: bevy_ecs::entity::Entity) -> usize {
-    let name = entity.to_string();
+/// The warnings so far that name `entity` and speak of `topic` (the log is
+/// the whole test binary's, and two tests' Apps may number entities alike).
+fn warnings_about(entity: bevy_ecs::entity::Entity, topic: &str) -> usize {
+    let name = format!("{entity}:");
     let all = WARNINGS.lock().unwrap();
-    all.iter().filter(|w| w.starts_with(&name)).count()
+    all.iter()
+        .filter(|w| w.starts_with(&name) && w.contains(topic))
+        .count()
 }
 
 /// With the index in `Update`, before Bevy's first frustum update, a new
@@ -202,7 +205,7 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     app.update();
     assert!(app.world().get::<CullingCamera>(camera).is_none());
     assert_eq!(
-        warnings_about(camera),
+        warnings_about(camera, "Bevy frustum"),
         0,
         "no warning before Bevy's frustum"
     );
@@ -215,7 +218,7 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     let expected =
         bevy_rtree::Frustum::from_bevy(&bevy_frustum(&transform), transform.translation).unwrap();
     assert_eq!(followed.frustum, expected);
-    assert_eq!(warnings_about(camera), 0);
+    assert_eq!(warnings_about(camera, "Bevy frustum"), 0);
     // Not finite: warned about once, the last frustum kept.
     let broken = bevy_frustum(&Transform::from_xyz(f32::NAN, 2.0, 10.0));
     for _ in 0..3 {
@@ -224,7 +227,7 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
         let diagnostics = app.world().resource::<SpatialDiagnostics>();
         assert_eq!(diagnostics.culling.refused, 1, "counted every frame");
     }
-    assert_eq!(warnings_about(camera), 1);
+    assert_eq!(warnings_about(camera, "Bevy frustum"), 1);
     let kept = app.world().get::<CullingCamera>(camera).unwrap();
     assert_eq!(kept.frustum, expected);
 }
@@ -261,8 +264,8 @@ fn a_refused_caster_is_counted_every_frame_and_warned_about_once() {
     }
     let hits = app.world().get::<RayCasterHits>(flat).unwrap();
     assert_eq!(hits.error(), Some(SpatialError::InvalidRay));
-    assert_eq!(warnings_about(flat), 1);
-    assert_eq!(warnings_about(fine), 0);
+    assert_eq!(warnings_about(flat, "RayCaster"), 1);
+    assert_eq!(warnings_about(fine, "RayCaster"), 0);
 }
 
 /// An entity that stops following (`FollowBevyFrustum` or its `Frustum`

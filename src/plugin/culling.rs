@@ -114,8 +114,9 @@ impl<L: Component> CullingCamera<L> {
 /// list's allocation is reused from frame to frame. When the entity loses
 /// its `CullingCamera<L>`, the list goes too. The list is the stored answer
 /// of the frame's cull ([contract S9](crate::contract)): an entity despawned
-/// after it is still named until the next cull. A disabled (or inactive)
-/// camera does not cull: its list is the one from before it was disabled
+/// after it is still named until the next cull. A disabled camera (where
+/// Bevy's queries leave disabled entities out, as by default) or an
+/// inactive one does not cull: its list is the one from before it was disabled
 /// until it is enabled again, as Bevy leaves a disabled camera's
 /// `VisibleEntities`, and may name entities despawned since.
 ///

@@ -39,14 +39,15 @@ pub struct QueryWork {
     /// work (whatever modes its cameras or casters use), and once per join
     /// that is computed.
     pub runs: u32,
-    /// Queries answered: cameras culled, rays cast, joins computed.
+    /// Queries asked: cameras culled, rays cast (refused ones among them),
+    /// joins computed.
     pub queries: u64,
     /// Tree nodes whose lanes were tested.
     pub nodes_visited: u64,
-    /// Entries tested against the exact predicate.
+    /// Leaf lanes tested (see [`QueryStats::entries_tested`](crate::QueryStats)).
     pub entries_tested: u64,
-    /// Queries refused as invalid this frame, each logged once per entity
-    /// as well: a caster whose ray is not valid in world space (a zero
+    /// Queries refused as invalid this frame, each logged as well, once
+    /// each time it becomes refused: a caster whose ray is not valid in world space (a zero
     /// scale, a NaN transform; its `RayCasterHits` holds the error), a
     /// followed Bevy frustum the crate refuses (the camera keeps its last
     /// frustum).

@@ -170,8 +170,8 @@ fn keep_fresh(tree: &mut RTree<Entity>, place: Where, away: &mut WorkAway) -> bo
             return tree.step_rebuild(Duration::ZERO);
         }
         let work = bevy_tasks::block_on(away.task.take().unwrap());
-        // Refused if the rebuild was dropped and started again meanwhile;
-        // a worn tree starts another.
+        // Taken back, its rebuild being the one under way (a dropped one
+        // let its work go above).
         away.back = tree.finish_rebuild_work(work);
     }
     #[cfg(not(feature = "parallel"))]

@@ -154,7 +154,8 @@ impl<L: Component> RayCaster<L> {
 /// `RayCasterHits<A>` and a `RayCasterHits<B>`. When the entity loses its
 /// `RayCaster<L>`, the answer goes too. The answer is the stored result of
 /// the frame's cast ([contract S9](crate::contract)): an entity despawned
-/// after it is still named until the next cast. A disabled caster is not
+/// after it is still named until the next cast. A disabled caster (where
+/// Bevy's queries leave disabled entities out, as by default) is not
 /// cast: its answer is the one from before it was disabled until it is
 /// enabled again, as Bevy leaves a disabled camera's `VisibleEntities`,
 /// and may name entities despawned since.
@@ -274,8 +275,6 @@ pub(crate) struct RayScratch {
     modes: Vec<RayMode>,
     rays: Vec<Ray>,
     results: RayResults<Entity>,
-    /// Casters whose ray was refused and logged, until it is valid again.
-    warned: bevy_ecs::entity::EntityHashSet,
 }
 
 /// Where a caster is: its `GlobalTransform`, if it has one (feature `bevy`).
@@ -375,19 +374,15 @@ pub(crate) fn cast_rays<L: Component>(
             answer.ray = Some(*ray);
             answer.hits.clear();
             answer.any = false;
-            answer.error = None;
+            // Refused last frame too: already logged (once each time a
+            // caster's ray becomes refused, kept on the caster itself).
+            let refused_before = answer.error.take().is_some();
             let hits = match scratch.results.hits(i) {
-                Ok(hits) => {
-                    // (Usually empty: no look-up per caster and frame.)
-                    if !scratch.warned.is_empty() {
-                        scratch.warned.remove(&entity);
-                    }
-                    hits
-                }
+                Ok(hits) => hits,
                 Err(error) => {
                     answer.error = Some(error);
                     refused += 1;
-                    if scratch.warned.insert(entity) {
+                    if !refused_before {
                         log::warn!(
                             "{entity}: its RayCaster's ray is refused in world space ({error}): \
                              a zero scale or a NaN transform? Its RayCasterHits holds the error"

@@ -422,7 +422,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// Rays `a` and `b` of a batch through the subtree of `start` in lock
     /// step, recording their hits as [`RTree::single_from`] does, where
-    /// [`RTree::may_walk_paired`] allows (else one after the other).
+    /// [`RTree::may_walk_paired`] allows; else one after the other.
     fn pair_from(&self, start: u32, [a, b]: [usize; 2], mode: RayMode, ws: &mut QueryWorkspace) {
         #[cfg(target_arch = "x86_64")]
         {
@@ -432,16 +432,14 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             // below is reached only where it found those instructions,
             // whoever calls this.
             let avx512 = super::ray_avx512::walk_is_avx512::<W>;
-            if !(avx512(&test_a) && avx512(&test_b)) {
-                self.single_from(start, a, mode, ws);
-                self.single_from(start, b, mode, ws);
-                return;
-            }
             let limits = [s.limits[a], s.limits[b]];
-            if let (Ok([best_a, best_b]), Ok([found_a, found_b])) = (
-                s.best.get_disjoint_mut([a, b]),
-                s.found.get_disjoint_mut([a, b]),
-            ) {
+            if avx512(&test_a)
+                && avx512(&test_b)
+                && let (Ok([best_a, best_b]), Ok([found_a, found_b])) = (
+                    s.best.get_disjoint_mut([a, b]),
+                    s.found.get_disjoint_mut([a, b]),
+                )
+            {
                 let mut walk = std::mem::take(&mut ws.ray_walk);
                 walk.note_origin(test_a.origin);
                 let super::ray::RayWalkScratch {
@@ -490,8 +488,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             }
         }
         // Not reached where `may_walk_paired` allowed the pair (two
-        // distinct rays, first or any hit, x86-64); kept so that the
-        // function answers every call.
+        // distinct rays, first or any hit, on the AVX-512 walk); kept so
+        // that the function answers every call.
         for r in [a, b] {
             self.single_from(start, r, mode, ws);
         }

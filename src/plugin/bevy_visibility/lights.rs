@@ -301,10 +301,10 @@ fn mark(view_visibility: &mut Option<Mut<ViewVisibility>>) {
     }
 }
 
-/// Where a light's centre and the entries lie within this many metres of
-/// the origin on every axis, no square or product of Bevy's sphere test
-/// overflows `f32` for an indexed entry: the vector from the light to a box
-/// is then under `sqrt(3) * 2 * 5e18` m long, its square under `f32::MAX`,
+/// Where the largest coordinate of a light's centre and that of the
+/// entries sum to at most this many metres, no square or product of Bevy's
+/// sphere test overflows `f32` for an indexed entry: the vector from the
+/// light to a box is then under `sqrt(3) * 5e18` m long, its square under `f32::MAX`,
 /// and its product with a column of at most
 /// [`COLUMN_BEYOND_BEVY_S_TEST`](super::sync::COLUMN_BEYOND_BEVY_S_TEST)
 /// far under it too. (A light's radius times that length may still

@@ -120,9 +120,8 @@ pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
         return Aabb::INVERTED;
     }
-    // A column that long meets a half extent of 0 (any other gives a box
-    // beyond `MAX_COORD`): the world box is small, but Bevy's product of
-    // the two is NaN, which culls nothing.
+    // Bevy's tests may overflow on a column that long (see the constant):
+    // the entity is left to them.
     let columns = affine.matrix3.to_cols_array();
     if columns.iter().any(|v| v.abs() > COLUMN_BEYOND_BEVY_S_TEST) {
         return Aabb::INVERTED;
