@@ -35,10 +35,8 @@ impl TryFrom<&BevyAabb> for Aabb {
         let (c, h) = (Vec3::from(aabb.center), Vec3::from(aabb.half_extents));
         let exact = (0..3)
             .all(|i| sum_is_exactly(c[i], -h[i], min[i]) && sum_is_exactly(c[i], h[i], max[i]));
-        if exact
-            && h.cmpge(Vec3::ZERO).all()
-            && let Ok(exact) = Aabb::new(min, max)
-        {
+        // A negative half extent makes `min` above `max`, which `new` refuses.
+        if exact && let Ok(exact) = Aabb::new(min, max) {
             return Ok(exact);
         }
         Aabb::from_oriented(c, h, &Affine3A::IDENTITY)
