@@ -92,8 +92,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// counts the calls: keep calling it once a frame, and the changes
     /// that piled up are applied over about as many steps after the work
     /// is back (at most eight; at the first step after work that took a
-    /// frame). Work that never comes back (dropped, or taken from a tree
-    /// that was cloned since) leaves the rebuild waiting until
+    /// frame). A clone made while the work is away holds the same rebuild,
+    /// and either tree takes the work back; a tree whose work never comes
+    /// back (dropped, or given to the other) waits until
     /// [`RTree::cancel_rebuild`].
     pub fn take_rebuild_work(&mut self) -> Option<RebuildWork<K, W>> {
         let job = self.rebuild_job.as_mut()?;
@@ -162,5 +163,172 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             job.moved_early.resize(job.placed.len(), false);
         }
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::geometry::Aabb;
+    use crate::query::oracle::BruteForce;
+    use crate::scene::{SceneRng, TownScene};
+    use crate::tree::ProxyId;
+
+    fn cube(centre: Vec3, half: f32) -> Aabb {
+        Aabb::new(centre - half, centre + half).unwrap()
+    }
+
+    /// A tree changed frame by frame, with the oracle beside it.
+    struct Churned {
+        tree: RTree<u32>,
+        oracle: BruteForce<u32>,
+        live: Vec<(u32, ProxyId)>,
+        rng: SceneRng,
+        next_key: u32,
+    }
+
+    impl Churned {
+        fn new(seed: u64) -> Self {
+            let scene = TownScene::new(6_000, 21);
+            let (tree, ids) = scene.bulk_loaded_tree();
+            let mut oracle = BruteForce::default();
+            for (key, aabb) in scene.boxes().iter().enumerate() {
+                oracle.insert(key as u32, *aabb);
+            }
+            let live = (0..).zip(ids).collect::<Vec<_>>();
+            Churned {
+                tree,
+                oracle,
+                next_key: live.len() as u32,
+                live,
+                rng: SceneRng::new(seed),
+            }
+        }
+
+        /// Steps, teleports, removals and inserts; the tree valid after.
+        fn frame(&mut self) {
+            for _ in 0..150 {
+                let (key, id) = self.live[self.rng.below(self.live.len())];
+                let (_, now) = self.tree.get(id).unwrap();
+                let moved = if self.rng.below(5) == 0 {
+                    cube(self.rng.point_in_world(), self.rng.range(0.25, 3.0))
+                } else {
+                    let step = Vec3::new(self.rng.range(-0.4, 0.4), 0.0, 0.0);
+                    Aabb::new(now.min + step, now.max + step).unwrap()
+                };
+                self.tree.update(id, moved).unwrap();
+                self.oracle.update(key, moved);
+            }
+            for _ in 0..20 {
+                let (key, id) = self.live.swap_remove(self.rng.below(self.live.len()));
+                assert_eq!(self.tree.remove(id), Ok(key));
+                self.oracle.remove(key);
+                let aabb = cube(self.rng.point_in_world(), self.rng.range(0.25, 3.0));
+                let id = self.tree.insert(self.next_key, aabb).unwrap();
+                self.oracle.insert(self.next_key, aabb);
+                self.live.push((self.next_key, id));
+                self.next_key += 1;
+            }
+            self.tree.validate().unwrap();
+        }
+
+        /// Every handle names its entry, and a box query over part of the
+        /// world answers as the oracle.
+        fn check(&mut self) {
+            let mut live = self.live.clone();
+            live.sort_unstable();
+            for ((key, want), (live_key, id)) in self.oracle.entries().iter().zip(&live) {
+                assert_eq!(key, live_key);
+                assert_eq!(self.tree.get(*id), Ok((*key, *want)));
+            }
+            let query = cube(self.rng.point_in_world(), 300.0);
+            assert_eq!(
+                self.tree.overlapping(&query),
+                self.oracle.overlapping(&query)
+            );
+        }
+    }
+
+    /// Work given back before it is done (some of its steps run away,
+    /// with the tree changing before, while and after): the steps here
+    /// finish it and swap in a valid tree that answers as the oracle.
+    #[test]
+    fn work_given_back_half_run_is_finished_by_the_steps() {
+        // The steps the whole work takes away from the tree.
+        let mut probe = Churned::new(0);
+        probe.tree.start_rebuild();
+        let mut whole = probe.tree.take_rebuild_work().unwrap();
+        let mut total = 0;
+        while !whole.is_done() {
+            RTree::<u32>::advance(None, &mut whole.job);
+            total += 1;
+        }
+        assert!(total > 20, "{total} steps");
+        for share in [1, 30, 70, 99] {
+            let steps = (total * share / 100).max(1);
+            let mut churned = Churned::new(share as u64);
+            churned.tree.start_rebuild();
+            churned.frame();
+            let mut work = churned.tree.take_rebuild_work().unwrap();
+            for _ in 0..steps {
+                RTree::<u32>::advance(None, &mut work.job);
+            }
+            assert!(!work.is_done(), "{steps} of {total} steps");
+            churned.frame();
+            assert!(churned.tree.finish_rebuild_work(work));
+            let mut frames = 0;
+            while !churned.tree.step_rebuild_units(10) {
+                churned.frame();
+                churned.check();
+                frames += 1;
+                assert!(frames < 10_000, "the rebuild never swaps in");
+            }
+            assert!(!churned.tree.rebuild_pending());
+            churned.tree.validate().unwrap();
+            churned.check();
+        }
+    }
+
+    /// A tree cloned while its rebuild's work is away: both hold the
+    /// rebuild the work was made for, so it lands in the one it is given
+    /// to, and the other waits for it until cancelled. The two change
+    /// apart meanwhile; each stays valid and answers as its oracle.
+    #[test]
+    fn a_tree_cloned_while_its_work_is_away() {
+        let mut original = Churned::new(5);
+        original.tree.start_rebuild();
+        let mut work = original.tree.take_rebuild_work().unwrap();
+        original.frame();
+        let mut twin = Churned {
+            tree: original.tree.clone(),
+            oracle: original.oracle.clone(),
+            live: original.live.clone(),
+            rng: SceneRng::new(6),
+            next_key: original.next_key,
+        };
+        work.run();
+        original.frame();
+        twin.frame();
+        assert!(twin.tree.finish_rebuild_work(work));
+        while !twin.tree.step_rebuild_units(10) {
+            twin.frame();
+            twin.check();
+        }
+        twin.check();
+        for _ in 0..3 {
+            assert!(!original.tree.step_rebuild_units(usize::MAX));
+            original.frame();
+            original.check();
+        }
+        assert!(original.tree.rebuild_pending());
+        original.tree.cancel_rebuild();
+        original.tree.start_rebuild();
+        while !original.tree.step_rebuild_units(10) {
+            original.frame();
+        }
+        original.tree.validate().unwrap();
+        original.check();
     }
 }
