@@ -8,7 +8,7 @@ use bevy_camera::primitives::{Aabb as BevyAabb, Frustum as BevyFrustum};
 use bevy_camera::{CameraProjection, PerspectiveProjection};
 use bevy_rtree::plugin::*;
 use bevy_rtree::scene::SceneRng;
-use bevy_rtree::{Aabb, CullMode};
+use bevy_rtree::{Aabb, CullMode, SpatialError};
 use bevy_transform::prelude::*;
 use glam::{Quat, Vec3};
 
@@ -447,4 +447,25 @@ fn bevy_boxes_convert_to_boxes_that_contain_them() {
         half_extents: glam::Vec3A::splat(edge * 1.01),
     };
     assert!(Aabb::try_from(&wider).is_err());
+    // A negative half extent (exact corners, min above max) or a NaN one:
+    // refused.
+    for half in [
+        glam::Vec3A::new(1.0, -1.0, 1.0),
+        glam::Vec3A::new(1.0, f32::NAN, 1.0),
+    ] {
+        let inverted = BevyAabb {
+            center: glam::Vec3A::ONE,
+            half_extents: half,
+        };
+        assert_eq!(Aabb::try_from(&inverted), Err(SpatialError::InvalidBox));
+    }
+    // A negative zero is a flat box.
+    let flat = BevyAabb {
+        center: glam::Vec3A::ONE,
+        half_extents: glam::Vec3A::new(1.0, -0.0, 1.0),
+    };
+    assert_eq!(
+        Aabb::try_from(&flat),
+        Aabb::new(Vec3::new(0.0, 1.0, 0.0), Vec3::new(2.0, 1.0, 2.0))
+    );
 }
