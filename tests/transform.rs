@@ -131,6 +131,82 @@ fn unusable_transforms_take_the_entity_out_and_are_counted() {
     }
 }
 
+/// A zero scale on a turned parent collapses a turned child's axis too,
+/// though none of the child's columns is zero (they lie in one plane, up
+/// to rounding): the child leaves the index and is counted, and a caster
+/// there reports an invalid ray, whatever the rotations, as with the zero
+/// scale on the entity itself. Scaled back, both are back.
+#[test]
+fn a_zero_scale_above_a_turned_child_collapses_it() {
+    use bevy_rtree::scene::SceneRng;
+    use bevy_rtree::{Ray, RayMode, SpatialError};
+    let mut app = app();
+    let mut rng = SceneRng::new(7);
+    let mut turn = || {
+        let angle = |rng: &mut SceneRng| rng.range(-3.0, 3.0);
+        Quat::from_euler(
+            glam::EulerRot::XYZ,
+            angle(&mut rng),
+            angle(&mut rng),
+            angle(&mut rng),
+        )
+    };
+    let collapsed = Vec3::new(1.0, 0.0, 1.0);
+    let parents: Vec<Entity> = (0..20)
+        .map(|_| {
+            let parent = Transform::from_rotation(turn()).with_scale(collapsed);
+            app.world_mut().spawn(parent).id()
+        })
+        .collect();
+    let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0).unwrap();
+    let children: Vec<(Entity, Entity)> = parents
+        .iter()
+        .map(|&parent| {
+            let turned = Transform::from_rotation(turn());
+            let boxed = (turned, LocalBounds(local()), ChildOf(parent));
+            let caster = (turned, RayCaster::new(ray, RayMode::First), ChildOf(parent));
+            let world = app.world_mut();
+            (world.spawn(boxed).id(), world.spawn(caster).id())
+        })
+        .collect();
+    app.update();
+    let columns_zero = children
+        .iter()
+        .filter(|(child, _)| {
+            let m = app
+                .world()
+                .get::<GlobalTransform>(*child)
+                .unwrap()
+                .affine()
+                .matrix3;
+            [m.x_axis, m.y_axis, m.z_axis].contains(&glam::Vec3A::ZERO)
+        })
+        .count();
+    assert_eq!(columns_zero, 0, "the children's columns are all nonzero");
+    for &(child, caster) in &children {
+        let index = app.world().resource::<SpatialIndex>();
+        assert!(!index.contains(child), "{:?}", index.get(child));
+        let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+        assert_eq!(
+            hits.error(),
+            Some(SpatialError::InvalidRay),
+            "{:?}",
+            hits.ray()
+        );
+    }
+    let diagnostics = app.world().resource::<SpatialDiagnostics>();
+    assert_eq!(diagnostics.sync.invalid_skipped, children.len() as u64);
+    for &parent in &parents {
+        app.world_mut().get_mut::<Transform>(parent).unwrap().scale = Vec3::ONE;
+    }
+    app.update();
+    for &(child, caster) in &children {
+        assert!(app.world().resource::<SpatialIndex>().contains(child));
+        let hits = app.world().get::<RayCasterHits>(caster).unwrap();
+        assert_eq!(hits.error(), None);
+    }
+}
+
 /// A tiny scale whose determinant underflows `f32` (1e-16 on every axis,
 /// so 1e-48) collapses no axis: the entity keeps a box around the exact
 /// image of its corners (checked in `f64`), and nothing is counted.
