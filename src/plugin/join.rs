@@ -73,7 +73,8 @@ impl<A: Component, B: Component> SpatialJoin<A, B> {
         }
     }
 
-    /// This frame's pairs, sorted, as computed in `PostUpdate`: an entity
+    /// This frame's pairs, sorted, as computed in the plugin's schedule
+    /// (`PostUpdate` unless the plugin was given another): an entity
     /// despawned since is still named until the next run ([contract
     /// S9](crate::contract)), so look the entities up with `Query::get`.
     pub fn pairs(&self) -> &[(Entity, Entity)] {
