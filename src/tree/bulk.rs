@@ -13,7 +13,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// entries by median cuts.
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
-    /// handles stay valid. Into an empty tree, leaves are packed full; into
+    /// handles stay valid. Into an empty tree (new, cleared or emptied by
+    /// removals), leaves are packed full; into
     /// one that holds entries, this is a rebuild, and leaves keep room for
     /// two more entries as [`RTree::rebuild`] leaves them, and a rebuild
     /// under way is dropped, as `rebuild` drops it. Parents keep
@@ -49,7 +50,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         if entries.is_empty() {
             return Ok(Vec::new());
         }
-        if self.proxies.is_empty() {
+        if self.len == 0 {
             return Ok(self.load_fresh(entries));
         }
         // This retiles every entry, as `rebuild` does: a rebuild under way
@@ -76,15 +77,18 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         Ok(ids)
     }
 
-    /// [`RTree::insert_bulk`] into a tree that never held an entry: the
-    /// entries are tiled first and get their slots in the order of the
-    /// leaves, so that the keys of a leaf (one array indexed by slot) sit
-    /// side by side and a query that reports a leaf reads one or two cache
-    /// lines of keys instead of one per entry. Returns the handles in the
-    /// order of `entries`.
+    /// [`RTree::insert_bulk`] into an empty tree (new, cleared, or emptied
+    /// by removals: a scene loaded again): the entries are tiled first and
+    /// get their slots in the order of the leaves, so that the keys of a
+    /// leaf (one array indexed by slot) sit side by side and a query that
+    /// reports a leaf reads one or two cache lines of keys instead of one
+    /// per entry. Returns the handles in the order of `entries`.
     fn load_fresh(&mut self, entries: Vec<(K, Aabb)>) -> Vec<ProxyId> {
         // The new structure is as fresh as a rebuild would make it.
         self.rebuild_job = None;
+        // Slots freed by removals are reused lowest first, as a new tree
+        // hands them out, so that each leaf's slots make a run.
+        self.free_proxies.sort_unstable_by(|a, b| b.cmp(a));
         let settings = self.settings;
         let mut tiled: Vec<Entry> = entries
             .iter()
@@ -258,6 +262,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     pub(super) const REBUILD_LEAF_FILL: usize = W - W / 8;
 
     /// Reserves room for `additional` more entries and their nodes.
+    /// Panics where that many cannot be counted in memory, as
+    /// `Vec::reserve` does.
     pub fn reserve(&mut self, additional: usize) {
         self.proxies.reserve(additional);
         self.nodes.reserve(additional * 2 / W + 1);
@@ -405,6 +411,52 @@ mod tests {
         tree.insert(20_000, between).unwrap();
         tree.validate().unwrap();
         assert_eq!(tree.node_count(), nodes);
+    }
+
+    /// A tree emptied by `clear` or by removals loads as a new one does:
+    /// leaves packed full, each leaf's slots one run, and the handles from
+    /// before stale.
+    #[test]
+    fn an_emptied_tree_loads_as_a_new_one() {
+        let grid = |i: u32| {
+            let at = Vec3::new((i % 100) as f32, 0.0, (i / 100) as f32) * 3.0;
+            (i, Aabb::new(at, at + Vec3::ONE).unwrap())
+        };
+        let fresh = grid_tree(2_000);
+        let leaves = |tree: &RTree<u32, 16>| -> Vec<Vec<u32>> {
+            let leaves = tree.nodes.iter().filter(|n| n.level == 0);
+            leaves.map(|n| n.child[..n.len()].to_vec()).collect()
+        };
+        let one_run = |slots: &Vec<u32>| {
+            let (lo, hi) = (slots.iter().min().unwrap(), slots.iter().max().unwrap());
+            (hi - lo) as usize == slots.len() - 1
+        };
+        assert!(leaves(&fresh).iter().all(one_run));
+        for emptied_by_removals in [false, true] {
+            let mut tree = RTree::<u32, 16>::new();
+            let before = tree.insert_bulk((0..2_000).map(grid)).unwrap();
+            // Removed in an order that leaves the free slots shuffled.
+            if emptied_by_removals {
+                for &id in before
+                    .iter()
+                    .step_by(2)
+                    .chain(before.iter().skip(1).step_by(2).rev())
+                {
+                    tree.remove(id).unwrap();
+                }
+            } else {
+                tree.clear();
+            }
+            assert!(tree.is_empty());
+            let ids = tree.insert_bulk((0..2_000).map(grid)).unwrap();
+            tree.validate().unwrap();
+            assert_eq!(fills(&tree, 0), fills(&fresh, 0));
+            assert_eq!(tree.height(), fresh.height());
+            let scattered = leaves(&tree).iter().filter(|slots| !one_run(slots)).count();
+            assert_eq!(scattered, 0, "leaves whose slots are not one run");
+            assert_eq!(tree.get(ids[7]), Ok(grid(7)));
+            assert!(before.iter().all(|&old| tree.get(old).is_err()));
+        }
     }
 
     /// The groups hold every entry once, sizes differing by at most one,
