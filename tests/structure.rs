@@ -44,6 +44,10 @@ fn remove_in<const W: usize>(n: usize, order: impl Iterator<Item = usize>) {
         tree.validate().unwrap();
         let expected: Vec<u32> = (0..n as u32).filter(|&k| alive[k as usize]).collect();
         assert_eq!(tree.overlapping(&probe), expected);
+        // Every live node counted at its level, and the freed ones at none.
+        let per_level: usize = (0..tree.height()).map(|l| tree.nodes_at_level(l)).sum();
+        assert_eq!(per_level, tree.node_count());
+        assert_eq!(tree.nodes_at_level(usize::from(u16::MAX)), 0);
     }
     assert!(tree.is_empty());
 }

@@ -45,7 +45,8 @@ impl<K: Copy> RayResults<K> {
     }
 
     /// The first hit of ray `i` (in any mode but
-    /// [`RayMode::Any`](crate::RayMode::Any)).
+    /// [`RayMode::Any`](crate::RayMode::Any)). Panics if `i` is out of
+    /// range.
     pub fn first(&self, i: usize) -> Result<Option<RayHit<K>>, SpatialError> {
         Ok(self.hits(i)?.first().copied())
     }
@@ -68,7 +69,8 @@ impl<K: Copy> RayResults<K> {
         self.hits.clear();
     }
 
-    /// Whether ray `i` hit anything (in every mode).
+    /// Whether ray `i` hit anything (in every mode). Panics if `i` is out
+    /// of range.
     pub fn any(&self, i: usize) -> Result<bool, SpatialError> {
         self.slots[i].as_ref().map(|(_, any)| *any).map_err(|e| *e)
     }

@@ -273,6 +273,11 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// # Ok::<(), bevy_rtree::SpatialError>(())
     /// ```
     pub fn nodes_at_level(&self, level: usize) -> usize {
+        // Nodes on the free list carry a level of their own, above any
+        // tree's height: they are not counted at it.
+        if level >= usize::from(FREE_LEVEL) {
+            return 0;
+        }
         self.nodes
             .iter()
             .filter(|n| n.level as usize == level)
