@@ -4,6 +4,7 @@ use std::fmt;
 
 use super::RTree;
 use super::node::{FREE_LEVEL, NIL};
+use super::rebuild::Phase;
 use crate::geometry::Aabb;
 
 /// A broken invariant found by [`RTree::validate`]; the text says which.
@@ -41,7 +42,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// node's copy of the bound its parent holds for it matches that lane
     /// (all space for the root); free nodes plus live nodes make up the
     /// pool, and free slots plus live and retired ones the slots, each listed
-    /// once.
+    /// once; inner lanes hold valid boxes. Of a rebuild under way: its
+    /// marks agree, and the entries its new leaves hold unmarked are the
+    /// tree's, with their current boxes.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         let root = self.root;
         ensure!(
@@ -151,6 +154,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
                         c.level,
                         node.level
                     );
+                    // Valid too: an unbounded lane (all space leaking in
+                    // from the root's copy, say) would make every query
+                    // visit the whole subtree without a wrong answer.
+                    ensure!(
+                        lane_box.is_valid(),
+                        "node {index} lane {lane} holds invalid box {lane_box:?}"
+                    );
                     let bound = self.node_bound(child);
                     ensure!(
                         lane_box.contains(&bound),
@@ -235,6 +245,61 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
             self.free_nodes.len(),
             self.nodes.len()
         );
+        self.validate_rebuild_under_way()
+    }
+
+    /// The rebuild under way, which answers nothing until it is swapped
+    /// in, so that a fault in it would show only then: its marks are each
+    /// listed once; and before the catch-up, every entry the new structure
+    /// holds unmarked is the same entry as in the snapshot, at the lane its
+    /// record names, with the tree's current exact box, inside its enlarged
+    /// box, inside its new leaf's bound.
+    fn validate_rebuild_under_way(&self) -> Result<(), InvariantViolation> {
+        let Some(job) = self.rebuild_job.as_deref() else {
+            return Ok(());
+        };
+        let marked = |slot: usize| job.is_marked.get(slot).copied().unwrap_or(false);
+        for &slot in &job.marked {
+            ensure!(
+                marked(slot as usize),
+                "slot {slot} listed as marked, not marked"
+            );
+        }
+        let marks = job.is_marked.iter().filter(|&&m| m).count();
+        ensure!(
+            marks == job.marked.len(),
+            "{marks} slots marked, {} listed",
+            job.marked.len()
+        );
+        if matches!(job.phase, Phase::Away | Phase::CatchUp(_)) {
+            return Ok(());
+        }
+        for (slot, &(leaf, lane, fat)) in job.placed.iter().enumerate() {
+            if leaf == NIL || marked(slot) {
+                continue;
+            }
+            ensure!(
+                job.snapshot_stamps.get(slot) == self.stamps.get(slot),
+                "slot {slot} changed hands since the snapshot, unmarked"
+            );
+            let record = &self.proxies[slot];
+            let exact = self.nodes[record.leaf as usize].lane_box(record.lane as usize);
+            let new_leaf = &job.nodes[leaf as usize];
+            ensure!(
+                new_leaf.child[lane as usize] == slot as u32,
+                "slot {slot} placed at ({leaf}, {lane}), which holds {}",
+                new_leaf.child[lane as usize]
+            );
+            ensure!(
+                new_leaf.lane_box(lane as usize) == exact && fat.contains(&exact),
+                "slot {slot}: the new leaf holds {:?}, enlarged {fat:?}, the tree {exact:?}",
+                new_leaf.lane_box(lane as usize)
+            );
+            ensure!(
+                job.leaf_bounds[leaf as usize].contains(&fat),
+                "slot {slot}: enlarged box {fat:?} outside its new leaf's bound"
+            );
+        }
         Ok(())
     }
 }
@@ -396,5 +461,61 @@ mod tests {
         tree.held_bounds[root] = Aabb::INVERTED;
         let broken = tree.validate().unwrap_err();
         assert!(broken.0.contains("root's copy"), "{broken}");
+    }
+
+    /// An inner lane that holds all space (with its child's copy, so that
+    /// the two agree) is reported: queries would visit the whole subtree.
+    #[test]
+    fn an_unbounded_inner_lane_is_reported() {
+        let mut tree = tree();
+        let root = tree.root as usize;
+        let child = tree.nodes[root].child[0] as usize;
+        tree.nodes[root].set_lane_box(0, &Aabb::EVERYWHERE);
+        tree.held_bounds[child] = Aabb::EVERYWHERE;
+        let broken = tree.validate().unwrap_err();
+        assert!(broken.0.contains("invalid box"), "{broken}");
+    }
+
+    /// Faults in a rebuild under way are reported before its swap: an
+    /// entry of a new leaf whose box is not the tree's, and a mark not
+    /// listed.
+    #[test]
+    fn a_rebuild_under_way_that_went_wrong_is_reported() {
+        let under_way = || {
+            let mut tree = tree();
+            tree.start_rebuild();
+            // Every leaf filled, the levels above not yet.
+            while tree
+                .rebuild_job
+                .as_ref()
+                .unwrap()
+                .placed
+                .iter()
+                .any(|p| p.0 == NIL)
+            {
+                RTree::<u32>::advance(None, tree.rebuild_job.as_mut().unwrap());
+            }
+            assert!(!matches!(
+                tree.rebuild_job.as_ref().unwrap().phase,
+                Phase::Done { .. }
+            ));
+            tree.validate().unwrap();
+            tree
+        };
+        let mut tree = under_way();
+        let job = tree.rebuild_job.as_mut().unwrap();
+        let (leaf, lane, _) = job.placed[7];
+        let mut moved = job.nodes[leaf as usize].lane_box(lane as usize);
+        moved.max.y += 0.5;
+        job.nodes[leaf as usize].set_lane_box(lane as usize, &moved);
+        let broken = tree.validate().unwrap_err();
+        assert!(broken.0.contains("slot 7: the new leaf holds"), "{broken}");
+
+        let mut tree = under_way();
+        let job = tree.rebuild_job.as_mut().unwrap();
+        job.is_marked.resize(8, false);
+        job.is_marked[7] = true;
+        let broken = tree.validate().unwrap_err();
+        assert!(broken.0.contains("1 slots marked, 0 listed"), "{broken}");
     }
 }
