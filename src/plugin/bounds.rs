@@ -10,7 +10,9 @@ use crate::geometry::Aabb;
 ///
 /// Set it yourself (or, with the `bevy` feature, let `LocalBounds` derive it
 /// from the `GlobalTransform`). Only entities whose `SpatialBounds` changed since the
-/// last frame touch the index. Removing the component, or despawning the
+/// last frame touch the index, as Bevy's change detection tells: a write
+/// through `bypass_change_detection` is not seen until the next detected
+/// one. Removing the component, or despawning the
 /// entity, takes it out of every index at once, before any later query.
 ///
 /// A box that is not valid (NaN, infinite, inverted, beyond

@@ -169,11 +169,19 @@ impl BevyVisibilitySettings {
 /// before it, bevy_light's `UpdateBounds` among them), before
 /// `VisibilitySystems::CheckVisibility`.
 ///
+/// The index reads a renderable's box again when Bevy's change detection
+/// says its `GlobalTransform` or `Aabb` changed: a write through
+/// `bypass_change_detection` is not seen until the next detected one,
+/// where Bevy's culling, which reads every box each frame, sees it at
+/// once (Bevy's transform propagation, too, misses such a write to
+/// `Transform`).
+///
 /// A system of the app that writes `GlobalTransform` or `Aabb` (or spawns
-/// or enables renderables, or takes `NoFrustumCulling` or `NoCpuCulling`
-/// off them) after transform propagation but before Bevy's culling must
-/// run before this set too: Bevy's culling would see its
-/// change in the same frame, and the index only from the next one. The
+/// or enables renderables, gives them their visibility components, or
+/// takes `NoFrustumCulling` or `NoCpuCulling` off them) after transform
+/// propagation but before Bevy's culling must run before this set too:
+/// Bevy's culling would see its change in the same frame, and the index
+/// only from the next one. The
 /// same holds for the lights' shadow visibility (feature `bevy_light`),
 /// which runs after camera culling from the same index: a shadow caster
 /// written between camera culling and
