@@ -182,8 +182,8 @@ fn warnings_about(entity: bevy_ecs::entity::Entity, topic: &str) -> usize {
 /// With the index in `Update`, before Bevy's first frustum update, a new
 /// camera's Bevy frustum is still the default one: it gets its culling
 /// camera once Bevy has computed a frustum, with no warning meanwhile. A
-/// frustum that is not finite keeps the last culling frustum and is
-/// warned about once.
+/// frustum that is not finite keeps the last culling frustum, is counted
+/// every frame it stays so and warned about each time it becomes so.
 #[test]
 fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     use bevy_ecs::schedule::ScheduleLabel;
@@ -219,17 +219,34 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
         bevy_rtree::Frustum::from_bevy(&bevy_frustum(&transform), transform.translation).unwrap();
     assert_eq!(followed.frustum, expected);
     assert_eq!(warnings_about(camera, "Bevy frustum"), 0);
-    // Not finite: warned about once, the last frustum kept.
+    // Not finite: warned about once, counted every frame it stays so
+    // (written again or not), the last frustum kept.
     let broken = bevy_frustum(&Transform::from_xyz(f32::NAN, 2.0, 10.0));
-    for _ in 0..3 {
-        *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = broken;
+    let refused_now = |app: &App| app.world().resource::<SpatialDiagnostics>().culling.refused;
+    for frame in 0..5 {
+        if frame < 3 {
+            *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = broken;
+        }
         app.update();
-        let diagnostics = app.world().resource::<SpatialDiagnostics>();
-        assert_eq!(diagnostics.culling.refused, 1, "counted every frame");
+        assert_eq!(refused_now(&app), 1, "counted every frame");
     }
     assert_eq!(warnings_about(camera, "Bevy frustum"), 1);
     let kept = app.world().get::<CullingCamera>(camera).unwrap();
     assert_eq!(kept.frustum, expected);
+    // Valid again: nothing counted; refused again: warned about again.
+    *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = bevy_frustum(&transform);
+    app.update();
+    assert_eq!(refused_now(&app), 0);
+    *app.world_mut().get_mut::<BevyFrustum>(camera).unwrap() = broken;
+    app.update();
+    assert_eq!(refused_now(&app), 1);
+    assert_eq!(warnings_about(camera, "Bevy frustum"), 2);
+    // A camera that stops following is no longer counted.
+    app.world_mut()
+        .entity_mut(camera)
+        .remove::<FollowBevyFrustum>();
+    app.update();
+    assert_eq!(refused_now(&app), 0);
 }
 
 /// A caster whose ray is refused in world space (its entity scaled to

@@ -24,7 +24,9 @@ use crate::query::CullMode;
 ///
 /// A frustum that cannot be converted (a NaN or infinite plane other than
 /// Bevy's infinite far plane, see [`Frustum::from_bevy`]) keeps the
-/// previous one and logs a warning once per camera. Removing
+/// previous one, logs a warning each time it becomes refused, and is
+/// counted in [`QueryWork::refused`](super::QueryWork) every frame it
+/// stays refused. Removing
 /// `FollowBevyFrustum` (or the camera's `Frustum`) removes the
 /// `CullingCamera` and its list; a Bevy camera with `is_active: false` is
 /// not culled and keeps its last list, as Bevy skips it.
@@ -179,7 +181,8 @@ fn follow_bevy_frustums<L: Component>(
             Without<CullingCamera<L>>,
         )>,
     >,
-    mut warned: Local<bevy_ecs::entity::EntityHashSet>,
+    followers: Query<(), (With<FollowBevyFrustum<L>>, With<BevyFrustum>)>,
+    mut refused: Local<bevy_ecs::entity::EntityHashSet>,
     sink: Res<super::diagnostics::DiagnosticsSink>,
 ) {
     for (entity, frustum, global, follow, culling) in &mut cameras {
@@ -194,8 +197,7 @@ fn follow_bevy_frustums<L: Component>(
             continue;
         }
         let Some(converted) = convert(frustum, global.translation()) else {
-            sink.add(|d| d.culling.refused += 1);
-            if warned.insert(entity) {
+            if refused.insert(entity) {
                 log::warn!(
                     "{entity}: its Bevy frustum is refused (a NaN plane, or an eye beyond \
                      MAX_COORD); keeping the last culling frustum"
@@ -203,6 +205,7 @@ fn follow_bevy_frustums<L: Component>(
             }
             continue;
         };
+        refused.remove(&entity);
         match culling {
             Some(mut culling) => {
                 culling.frustum = converted;
@@ -221,5 +224,13 @@ fn follow_bevy_frustums<L: Component>(
                 });
             }
         }
+    }
+    // The cameras whose frustum stays refused (changed or not this frame),
+    // while they still follow one: a camera is read above only when its
+    // frustum changes.
+    refused.retain(|&camera| followers.contains(camera));
+    let still_refused = refused.len() as u64;
+    if still_refused > 0 {
+        sink.add(|d| d.culling.refused += still_refused);
     }
 }

@@ -46,11 +46,11 @@ pub struct QueryWork {
     pub nodes_visited: u64,
     /// Leaf lanes tested (see [`QueryStats::entries_tested`](crate::QueryStats)).
     pub entries_tested: u64,
-    /// Queries refused as invalid this frame, each logged as well, once
-    /// each time it becomes refused: a caster whose ray is not valid in world space (a zero
-    /// scale, a NaN transform; its `RayCasterHits` holds the error), a
-    /// followed Bevy frustum the crate refuses (the camera keeps its last
-    /// frustum).
+    /// Queries refused as invalid this frame, counted every frame they
+    /// stay refused and logged once each time they become so: a caster
+    /// whose ray is not valid in world space (a zero scale, a NaN
+    /// transform; its `RayCasterHits` holds the error), a followed Bevy
+    /// frustum the crate refuses (the camera keeps its last frustum).
     pub refused: u64,
 }
 
