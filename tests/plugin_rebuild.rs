@@ -125,6 +125,38 @@ fn rebuild_off_rebuilds_nothing() {
     assert_eq!(teleporting_scene(plugin, 4_000, 40, 0), 0);
 }
 
+/// A repair budget of 0 turns repair off: with rebuilds off too, the
+/// maintenance never runs, though teleports leave leaves to repair.
+#[test]
+fn a_repair_budget_of_zero_runs_no_maintenance() {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin {
+        optimize_budget: 0,
+        rebuild: RebuildMode::Off,
+        ..SpatialIndexPlugin::default()
+    });
+    let mut rng = SceneRng::new(9);
+    let entities: Vec<Entity> = (0..3_000)
+        .map(|_| {
+            app.world_mut()
+                .spawn(SpatialBounds(random_box(&mut rng)))
+                .id()
+        })
+        .collect();
+    app.update();
+    for &entity in entities.iter().step_by(2) {
+        app.world_mut().get_mut::<SpatialBounds>(entity).unwrap().0 = random_box(&mut rng);
+    }
+    for _ in 0..3 {
+        app.update();
+        let diagnostics = app.world().resource::<SpatialDiagnostics>();
+        assert_eq!(diagnostics.maintenance.runs, 0);
+    }
+    let index = app.world().resource::<SpatialIndex>();
+    assert!(index.tree().pending_repairs() > 0, "leaves left to repair");
+    index.validate().unwrap();
+}
+
 /// The default rebuilds on the task pool where the app has one.
 #[test]
 fn the_default_rebuilds_on_the_task_pool() {

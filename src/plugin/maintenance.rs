@@ -139,14 +139,15 @@ pub(crate) fn maintain_layer<L: Component>(
     });
 }
 
-/// Run condition: the layer has degraded leaves waiting for repair, a
-/// rebuild to start or to advance, or a rebuild's work out on the pool.
+/// Run condition: the layer has degraded leaves waiting for repair (and a
+/// budget to repair them: 0 turns repair off), a rebuild to start or to
+/// advance, or a rebuild's work out on the pool.
 pub(crate) fn needs_maintenance<L: Component>(
     index: Res<SpatialIndex<L>>,
     settings: Res<SpatialIndexConfig>,
 ) -> bool {
     let tree = &index.tree;
-    tree.pending_repairs() > 0
+    (tree.pending_repairs() > 0 && settings.optimize_budget > 0)
         || index.rebuild_away
         || (settings.rebuild.here().is_some() && (tree.rebuild_pending() || tree.is_worn()))
 }

@@ -146,7 +146,7 @@ pub struct SpatialIndexPlugin {
     /// (or casts) at the origin.
     pub schedule: InternedScheduleLabel,
     /// Most churned nodes re-tiled per layer per frame; bounds the cost of
-    /// repair in any one frame.
+    /// repair in any one frame (0 turns repair off).
     pub optimize_budget: usize,
     /// Whether and how each layer's tree is rebuilt when the changes since
     /// its last rebuild reach a quarter of its entries, so that it stays
@@ -253,7 +253,11 @@ impl Plugin for SpatialIndexPlugin {
             )
                 .chain(),
         )
-        .add_systems(Last, diagnostics::publish_diagnostics)
+        // After the queries, should the plugin's schedule be `Last` too.
+        .add_systems(
+            Last,
+            diagnostics::publish_diagnostics.after(SpatialIndexSystems::Queries),
+        )
         .add_observer(opt_back_in)
         .add_observer(enabled_again)
         .add_observer(index::put_handle_back);
