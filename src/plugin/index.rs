@@ -291,6 +291,8 @@ pub(crate) struct SyncScratch {
     kept_moves: Vec<(ProxyId, Entity, Aabb)>,
     /// Indices into `kept_moves` whose handle was not the entity's entry.
     refused: Vec<usize>,
+    /// Working space for putting the kept moves in slot order.
+    kept_spare: Vec<(ProxyId, Entity, Aabb)>,
     /// The handles of the entities the last sync inserted, for callers that
     /// keep them on the entities.
     pub inserted: Vec<(Entity, ProxyId)>,
@@ -322,6 +324,7 @@ pub(crate) fn apply_changes<L: Component>(
         moves,
         kept_moves,
         refused,
+        kept_spare,
         inserted,
         ..
     } = scratch;
@@ -361,7 +364,10 @@ pub(crate) fn apply_changes<L: Component>(
         }
     }
     // Moves by the handles the entities keep, each checked as it is
-    // applied; an entity whose handle is not its entry's is looked up.
+    // applied, in the order of their entries' slots (see `move_order`);
+    // an entity whose handle is not its entry's is looked up.
+    let slots = index.tree.slot_count();
+    super::move_order::bucket_by_slot(kept_moves, kept_spare, slots, |m| m.0.index());
     index.tree.update_kept(kept_moves, refused);
     count.updated = (kept_moves.len() - refused.len()) as u64;
     for &i in refused.iter() {

@@ -69,6 +69,7 @@ mod frame_queries;
 mod index;
 mod join;
 mod maintenance;
+mod move_order;
 mod oracle;
 mod query_param;
 mod raycast;

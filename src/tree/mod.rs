@@ -359,6 +359,13 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         }
     }
 
+    /// Entry slots ever issued (live, free and retired): every live
+    /// handle's index is below it.
+    #[cfg_attr(not(feature = "plugin"), allow(dead_code))]
+    pub(crate) fn slot_count(&self) -> u32 {
+        self.proxies.len() as u32
+    }
+
     /// The root node's index (for traversals).
     #[inline]
     pub(crate) fn root(&self) -> u32 {
