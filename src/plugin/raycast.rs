@@ -25,9 +25,9 @@ use crate::query::{QueryWorkspace, RayHit, RayMode, RayResults};
 /// mirroring scale mirrors it, as it does the origin), and the direction is
 /// normalised, so hits' `t` are distances in metres along the world ray
 /// (`max_t` is read in units of the given direction's length). A transform
-/// that collapses an axis (a scale of 0, on the caster or an ancestor) has
-/// no rotation: the answer is then `SpatialError::InvalidRay` until the
-/// scale is back. Without a `GlobalTransform` the ray is in world space as
+/// that collapses an axis (a zero column, as `LocalBounds` says) has no
+/// rotation: the answer is then `SpatialError::InvalidRay` until the scale
+/// is back. Without a `GlobalTransform` the ray is in world space as
 /// given.
 /// [`RayCasterHits::ray`] is the ray that was cast.
 ///
@@ -316,16 +316,9 @@ pub(crate) fn world_ray(ray: &Ray, placement: Placement<'_>) -> Ray {
     let unit_of = crate::geometry::unit_or_nan_f64;
     let turned =
         unit_of(m.x_axis) * unit.x + unit_of(m.y_axis) * unit.y + unit_of(m.z_axis) * unit.z;
-    // A collapse through an ancestor turned against the caster leaves no
-    // column zero, but the axes in one plane: no rotation either.
-    let dir = if super::transform::collapses_an_axis(&transform.affine().matrix3) {
-        glam::Vec3::NAN
-    } else {
-        unit_of(turned).as_vec3()
-    };
     Ray {
         origin: transform.transform_point(ray.origin),
-        dir,
+        dir: unit_of(turned).as_vec3(),
         max_t: (f64::from(ray.max_t) * length) as f32,
     }
 }

@@ -21,10 +21,14 @@ use crate::geometry::Aabb;
 /// `GlobalTransform` ([contract S1](crate::contract): outward rounding unless the transform is
 /// a pure translation).
 ///
-/// A transform that is not finite or that collapses an axis (a zero scale
-/// on the entity or on any ancestor, whatever the rotations between) gives
-/// no world box: the entity leaves the index, is reported once and
-/// counted, until its transform is usable again.
+/// A transform that is not finite or that collapses an axis (a zero
+/// column: a zero scale on the entity, or on an ancestor not turned
+/// against it) gives no world box: the entity leaves the index, is
+/// reported once and counted, until its transform is usable again. A zero
+/// scale on a turned ancestor of a turned entity leaves, once `f32` has
+/// rounded the product, columns only nearly in one plane, which no test
+/// can tell from a steep but real stretch: such an entity keeps the flat
+/// box around its image, a true box for it.
 ///
 /// `LocalBounds` requires the [`SpatialBounds`] it writes. Removing it (or
 /// the `GlobalTransform`) leaves that component, as Bevy leaves required
@@ -125,30 +129,10 @@ fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
 /// by the index) where the transform collapses an axis or is not finite.
 fn world_box(local: &LocalBounds, global: &GlobalTransform) -> Aabb {
     let affine = global.affine();
-    if collapses_an_axis(&affine.matrix3) {
+    // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
+    // (a valid, tiny box) gives a determinant that underflows f32.
+    if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
         return Aabb::INVERTED;
     }
     local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
-}
-
-/// Below this, a transform's columns are taken to lie in one plane: the
-/// volume they span, relative to the product of their lengths (1 for
-/// perpendicular columns), after `f32` rounding of columns that do lie in
-/// one plane, is a few times `f32`'s precision (6e-8) per level of the
-/// hierarchy that multiplied them.
-const COPLANAR_COLUMNS: f64 = 1e-5;
-
-/// Whether a transform collapses an axis: a zero scale on the entity
-/// itself (a zero column), or on an ancestor turned against it (columns
-/// that are not zero but lie in one plane, up to the rounding of the
-/// product). Also true where a column is not finite. Measured relative to
-/// the columns' lengths, in `f64`, so that a tiny uniform scale (1e-16,
-/// whose determinant underflows `f32`) is no collapse; tested this way a
-/// zero scale is one whatever the rotations above it.
-pub(crate) fn collapses_an_axis(matrix: &glam::Mat3A) -> bool {
-    let m = matrix.as_dmat3();
-    let lengths = m.x_axis.length() * m.y_axis.length() * m.z_axis.length();
-    let spanned = m.determinant().abs();
-    // NaN (from a column that is not finite) collapses too.
-    spanned.partial_cmp(&(COPLANAR_COLUMNS * lengths)) != Some(std::cmp::Ordering::Greater)
 }
