@@ -241,12 +241,42 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     app.update();
     assert_eq!(refused_now(&app), 1);
     assert_eq!(warnings_about(camera, "Bevy frustum"), 2);
-    // A camera that stops following is no longer counted.
+    // A camera that stops following is no longer counted (another one
+    // still following keeps the system running); following again while
+    // still refused, it is counted and warned about again.
+    let other = app
+        .world_mut()
+        .spawn((
+            bevy_frustum(&transform),
+            GlobalTransform::from(transform),
+            FollowBevyFrustum::default(),
+        ))
+        .id();
     app.world_mut()
         .entity_mut(camera)
         .remove::<FollowBevyFrustum>();
     app.update();
     assert_eq!(refused_now(&app), 0);
+    app.world_mut()
+        .entity_mut(camera)
+        .insert(FollowBevyFrustum::default());
+    app.update();
+    assert_eq!(refused_now(&app), 1);
+    assert_eq!(warnings_about(camera, "Bevy frustum"), 3);
+    // Disabled, it is out of every query and not counted; enabled again
+    // with the same refused frustum, it is counted again.
+    app.world_mut()
+        .entity_mut(camera)
+        .insert(bevy_ecs::entity_disabling::Disabled);
+    app.update();
+    assert_eq!(refused_now(&app), 0);
+    app.world_mut()
+        .entity_mut(camera)
+        .remove::<bevy_ecs::entity_disabling::Disabled>();
+    app.update();
+    assert_eq!(refused_now(&app), 1);
+    assert_eq!(warnings_about(camera, "Bevy frustum"), 3);
+    assert!(app.world().get::<CullingCamera>(other).is_some());
 }
 
 /// A caster whose ray is refused in world space (its entity scaled to

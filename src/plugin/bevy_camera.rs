@@ -137,12 +137,19 @@ pub(crate) fn add_follow_system<L: Component>(
     .add_observer(lose_frustum::<L>);
 }
 
+/// Marks a camera of layer `L` whose Bevy frustum is refused, from the
+/// frame it becomes so (logged then) until it converts again or the camera
+/// stops following: counted in the diagnostics every frame it stays, as a
+/// refused caster is.
+#[derive(Component)]
+struct RefusedFrustum<L: Component>(PhantomData<fn() -> L>);
+
 /// Observer: an entity that stops following its Bevy camera loses the
 /// culling camera the plugin kept for it (and with it its list), so that
-/// no frozen view keeps being culled.
+/// no frozen view keeps being culled, and is no longer counted as refused.
 fn stop_following<L: Component>(event: On<Remove<FollowBevyFrustum<L>>>, mut commands: Commands) {
     if let Ok(mut entity) = commands.get_entity(event.entity) {
-        entity.try_remove::<CullingCamera<L>>();
+        entity.try_remove::<(CullingCamera<L>, RefusedFrustum<L>)>();
     }
 }
 
@@ -181,10 +188,14 @@ fn follow_bevy_frustums<L: Component>(
             Without<CullingCamera<L>>,
         )>,
     >,
-    followers: Query<(), (With<FollowBevyFrustum<L>>, With<BevyFrustum>)>,
-    mut refused: Local<bevy_ecs::entity::EntityHashSet>,
+    refused: Query<(), (With<RefusedFrustum<L>>, With<BevyFrustum>)>,
     sink: Res<super::diagnostics::DiagnosticsSink>,
 ) {
+    // The cameras whose frustum stays refused count every frame, changed
+    // or not (a camera is read below only when its frustum changes); those
+    // that become refused or valid in this frame are counted as they are
+    // now (their marks land after the system).
+    let mut still_refused = refused.iter().count() as u64;
     for (entity, frustum, global, follow, culling) in &mut cameras {
         // Bevy's frustum as its required component makes it, before Bevy's
         // first `UpdateFrusta` (the index's schedule may run before it, as
@@ -196,16 +207,25 @@ fn follow_bevy_frustums<L: Component>(
         {
             continue;
         }
+        let was_refused = refused.contains(entity);
         let Some(converted) = convert(frustum, global.translation()) else {
-            if refused.insert(entity) {
+            if !was_refused {
+                still_refused += 1;
                 log::warn!(
                     "{entity}: its Bevy frustum is refused (a NaN plane, or an eye beyond \
                      MAX_COORD); keeping the last culling frustum"
                 );
+                // `try_`: an earlier command may despawn the camera.
+                commands
+                    .entity(entity)
+                    .try_insert(RefusedFrustum::<L>(PhantomData));
             }
             continue;
         };
-        refused.remove(&entity);
+        if was_refused {
+            still_refused -= 1;
+            commands.entity(entity).try_remove::<RefusedFrustum<L>>();
+        }
         match culling {
             Some(mut culling) => {
                 culling.frustum = converted;
@@ -225,11 +245,6 @@ fn follow_bevy_frustums<L: Component>(
             }
         }
     }
-    // The cameras whose frustum stays refused (changed or not this frame),
-    // while they still follow one: a camera is read above only when its
-    // frustum changes.
-    refused.retain(|&camera| followers.contains(camera));
-    let still_refused = refused.len() as u64;
     if still_refused > 0 {
         sink.add(|d| d.culling.refused += still_refused);
     }
