@@ -12,6 +12,7 @@ use bevy_ecs::system::SystemChangeTick;
 use super::bounds::{NoSpatialIndex, SpatialBounds, SpatialHandle};
 use super::change_scan::ChangeTest;
 use super::diagnostics::DiagnosticsSink;
+use super::move_order::{BucketSpace, bucket_by_slot};
 use crate::geometry::Aabb;
 use crate::tree::{InvariantViolation, ProxyId, RTree, TreeSettings};
 
@@ -291,8 +292,9 @@ pub(crate) struct SyncScratch {
     kept_moves: Vec<(ProxyId, Entity, Aabb)>,
     /// Indices into `kept_moves` whose handle was not the entity's entry.
     refused: Vec<usize>,
-    /// Working space for putting the kept moves in slot order.
-    kept_spare: Vec<(ProxyId, Entity, Aabb)>,
+    /// Working space for putting the moves in slot order.
+    kept_order: BucketSpace<(ProxyId, Entity, Aabb)>,
+    moves_order: BucketSpace<(ProxyId, Aabb)>,
     /// The handles of the entities the last sync inserted, for callers that
     /// keep them on the entities.
     pub inserted: Vec<(Entity, ProxyId)>,
@@ -324,7 +326,8 @@ pub(crate) fn apply_changes<L: Component>(
         moves,
         kept_moves,
         refused,
-        kept_spare,
+        kept_order,
+        moves_order,
         inserted,
         ..
     } = scratch;
@@ -367,7 +370,7 @@ pub(crate) fn apply_changes<L: Component>(
     // applied, in the order of their entries' slots (see `move_order`);
     // an entity whose handle is not its entry's is looked up.
     let slots = index.tree.slot_count();
-    super::move_order::bucket_by_slot(kept_moves, kept_spare, slots, |m| m.0.index());
+    bucket_by_slot(kept_moves, kept_order, slots, |m| m.0.index());
     index.tree.update_kept(kept_moves, refused);
     count.updated = (kept_moves.len() - refused.len()) as u64;
     for &i in refused.iter() {
@@ -379,7 +382,9 @@ pub(crate) fn apply_changes<L: Component>(
     }
     // Every box was validated above and every handle is live, so the batch
     // is accepted whole; should it ever be refused, the moves go one by one
-    // and only the refused ones are skipped.
+    // and only the refused ones are skipped. In slot order too: the layers'
+    // syncs keep no handles, and find every entry here.
+    bucket_by_slot(moves, moves_order, slots, |m| m.0.index());
     if index.tree.update_batch(moves).is_ok() {
         count.updated += moves.len() as u64;
     } else {

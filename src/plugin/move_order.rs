@@ -16,12 +16,29 @@ const BUCKET_BITS: u32 = 11;
 /// Fewer moves than this keep their order: their lines are few.
 const FEW: usize = 256;
 
+/// Working space kept between frames: the reordered moves are built in
+/// `spare`, the buckets counted in `starts`.
+pub(crate) struct BucketSpace<T> {
+    spare: Vec<T>,
+    starts: Vec<u32>,
+}
+
+// Not derived: empty space needs no default move.
+impl<T> Default for BucketSpace<T> {
+    fn default() -> Self {
+        BucketSpace {
+            spare: Vec::new(),
+            starts: Vec::new(),
+        }
+    }
+}
+
 /// Reorders `moves` by the high bits of `slot(move)`, for slots below
-/// `slots`: one counting pass and one scatter into `spare` (kept between
-/// calls), moves of a bucket keeping their order.
+/// `slots`: one counting pass and one scatter, moves of a bucket keeping
+/// their order.
 pub(crate) fn bucket_by_slot<T: Copy>(
     moves: &mut Vec<T>,
-    spare: &mut Vec<T>,
+    space: &mut BucketSpace<T>,
     slots: u32,
     slot: impl Fn(&T) -> u32,
 ) {
@@ -29,9 +46,12 @@ pub(crate) fn bucket_by_slot<T: Copy>(
         return;
     }
     let shift = (u32::BITS - slots.leading_zeros()).saturating_sub(BUCKET_BITS);
-    // A slot at or past `slots` (none is) would land in the last bucket.
+    // A slot at or past `slots` (a stale handle's) lands in the last bucket.
     let bucket = |m: &T| ((slot(m) >> shift) as usize).min((1 << BUCKET_BITS) - 1);
-    let mut start = vec![0u32; 1 << BUCKET_BITS];
+    let BucketSpace { spare, starts } = space;
+    starts.clear();
+    starts.resize(1 << BUCKET_BITS, 0);
+    let start = starts;
     for m in moves.iter() {
         start[bucket(m)] += 1;
     }
@@ -72,8 +92,8 @@ mod tests {
                 .map(|i| ((rng.next_u64() % u64::from(slots)) as u32, i))
                 .collect();
             let mut ours = moves.clone();
-            let mut spare = Vec::new();
-            bucket_by_slot(&mut ours, &mut spare, slots, |m| m.0);
+            let mut space = BucketSpace::default();
+            bucket_by_slot(&mut ours, &mut space, slots, |m| m.0);
             if len < FEW {
                 assert_eq!(ours, moves);
                 continue;

@@ -43,8 +43,9 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// (all space for the root); free nodes plus live nodes make up the
     /// pool, and free slots plus live and retired ones the slots, each listed
     /// once; inner lanes hold valid boxes. Of a rebuild under way: its
-    /// marks agree, and the entries its new leaves hold unmarked are the
-    /// tree's, with their current boxes.
+    /// marks agree, and until its catch-up begins (and while its work is
+    /// here), the entries its new leaves hold unmarked are the tree's,
+    /// with their current boxes.
     pub fn validate(&self) -> Result<(), InvariantViolation> {
         let root = self.root;
         ensure!(
