@@ -25,6 +25,15 @@ fn bevy_frustum(transform: &Transform) -> BevyFrustum {
     projection.compute_frustum(&GlobalTransform::from(*transform))
 }
 
+/// What a camera at `transform` that the main layer follows carries.
+fn follower(transform: &Transform) -> impl bevy_ecs::bundle::Bundle {
+    (
+        bevy_frustum(transform),
+        GlobalTransform::from(*transform),
+        FollowBevyFrustum::default(),
+    )
+}
+
 #[test]
 fn a_bevy_camera_culls_like_bevy_and_like_the_oracle() {
     let mut app = App::new();
@@ -44,14 +53,7 @@ fn a_bevy_camera_culls_like_bevy_and_like_the_oracle() {
     }
     let mut transform =
         Transform::from_xyz(5.0, 2.0, 3.0).with_rotation(Quat::from_rotation_y(0.4));
-    let camera = app
-        .world_mut()
-        .spawn((
-            bevy_frustum(&transform),
-            GlobalTransform::from(transform),
-            FollowBevyFrustum::default(),
-        ))
-        .id();
+    let camera = app.world_mut().spawn(follower(&transform)).id();
     for frame in 0..3 {
         app.update();
         let culling = *app
@@ -244,14 +246,7 @@ fn a_camera_waits_for_its_first_bevy_frustum_without_a_warning() {
     // A camera that stops following is no longer counted (another one
     // still following keeps the system running); following again while
     // still refused, it is counted and warned about again.
-    let other = app
-        .world_mut()
-        .spawn((
-            bevy_frustum(&transform),
-            GlobalTransform::from(transform),
-            FollowBevyFrustum::default(),
-        ))
-        .id();
+    let other = app.world_mut().spawn(follower(&transform)).id();
     app.world_mut()
         .entity_mut(camera)
         .remove::<FollowBevyFrustum>();
@@ -328,15 +323,7 @@ fn a_camera_that_stops_following_or_is_inactive_is_not_culled() {
     let ahead = Aabb::from_center_half_extents(Vec3::new(0.0, 0.0, -10.0), Vec3::ONE).unwrap();
     let seen = app.world_mut().spawn(SpatialBounds(ahead)).id();
     let transform = Transform::default();
-    let follow = |world: &mut bevy_ecs::world::World| {
-        world
-            .spawn((
-                bevy_frustum(&transform),
-                GlobalTransform::from(transform),
-                FollowBevyFrustum::default(),
-            ))
-            .id()
-    };
+    let follow = |world: &mut bevy_ecs::world::World| world.spawn(follower(&transform)).id();
     let culled = |app: &App| app.world().resource::<SpatialDiagnostics>().culling.queries;
 
     let stops = follow(app.world_mut());

@@ -24,6 +24,21 @@ fn random_box(rng: &mut SceneRng) -> Aabb {
     Aabb::new(at - half, at + half).unwrap()
 }
 
+/// An App with `plugin` and `count` entities at random boxes, not yet
+/// updated.
+fn app_with_boxes(
+    plugin: SpatialIndexPlugin,
+    count: usize,
+    rng: &mut SceneRng,
+) -> (App, Vec<Entity>) {
+    let mut app = App::new();
+    app.add_plugins(plugin);
+    let entities = (0..count)
+        .map(|_| app.world_mut().spawn(SpatialBounds(random_box(rng))).id())
+        .collect();
+    (app, entities)
+}
+
 /// Runs `frames` frames of 3 % teleports and 20 % steps over `count`
 /// entities, checking the index after every frame, and then more (up to
 /// four times as many in all) until `wanted` rebuilds have been swapped
@@ -31,16 +46,8 @@ fn random_box(rng: &mut SceneRng) -> Aabb {
 /// depends on the machine's speed (a slice's time budget, a task's
 /// thread), which the answers must not, nor whether the test passes.
 fn teleporting_scene(plugin: SpatialIndexPlugin, count: usize, frames: usize, wanted: u32) -> u32 {
-    let mut app = App::new();
-    app.add_plugins(plugin);
     let mut rng = SceneRng::new(21);
-    let entities: Vec<Entity> = (0..count)
-        .map(|_| {
-            app.world_mut()
-                .spawn(SpatialBounds(random_box(&mut rng)))
-                .id()
-        })
-        .collect();
+    let (mut app, entities) = app_with_boxes(plugin, count, &mut rng);
     let mut rebuilds = 0;
     for frame in 0.. {
         if frame >= frames && (rebuilds >= wanted || frame >= 4 * frames) {
@@ -129,20 +136,13 @@ fn rebuild_off_rebuilds_nothing() {
 /// maintenance never runs, though teleports leave leaves to repair.
 #[test]
 fn a_repair_budget_of_zero_runs_no_maintenance() {
-    let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin {
+    let plugin = SpatialIndexPlugin {
         optimize_budget: 0,
         rebuild: RebuildMode::Off,
         ..SpatialIndexPlugin::default()
-    });
+    };
     let mut rng = SceneRng::new(9);
-    let entities: Vec<Entity> = (0..3_000)
-        .map(|_| {
-            app.world_mut()
-                .spawn(SpatialBounds(random_box(&mut rng)))
-                .id()
-        })
-        .collect();
+    let (mut app, entities) = app_with_boxes(plugin, 3_000, &mut rng);
     app.update();
     for &entity in entities.iter().step_by(2) {
         app.world_mut().get_mut::<SpatialBounds>(entity).unwrap().0 = random_box(&mut rng);
@@ -189,19 +189,12 @@ fn work_away_dropped_by_a_spawn_wave_is_let_go() {
     bevy_tasks::AsyncComputeTaskPool::get_or_init(|| {
         bevy_tasks::TaskPoolBuilder::new().num_threads(2).build()
     });
-    let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin {
+    let plugin = SpatialIndexPlugin {
         rebuild: RebuildMode::OnTaskPool,
         ..SpatialIndexPlugin::default()
-    });
+    };
     let mut rng = SceneRng::new(5);
-    let entities: Vec<Entity> = (0..2_000)
-        .map(|_| {
-            app.world_mut()
-                .spawn(SpatialBounds(random_box(&mut rng)))
-                .id()
-        })
-        .collect();
+    let (mut app, entities) = app_with_boxes(plugin, 2_000, &mut rng);
     app.update();
     // Teleports until a rebuild starts: its work goes out that frame.
     let mut frames = 0;
