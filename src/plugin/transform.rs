@@ -129,10 +129,15 @@ fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
 /// by the index) where the transform collapses an axis or is not finite.
 fn world_box(local: &LocalBounds, global: &GlobalTransform) -> Aabb {
     let affine = global.affine();
-    // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
-    // (a valid, tiny box) gives a determinant that underflows f32.
-    if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
+    if collapses_an_axis(&affine.matrix3) {
         return Aabb::INVERTED;
     }
     local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
+}
+
+/// Whether a transform collapses an axis: its determinant is zero in
+/// `f32` and again in `f64` (a scale of 1e-16 on each axis, a valid tiny
+/// box, underflows `f32` alone). See [`LocalBounds`] for what this misses.
+pub(crate) fn collapses_an_axis(matrix: &glam::Mat3A) -> bool {
+    matrix.determinant() == 0.0 && matrix.as_dmat3().determinant() == 0.0
 }

@@ -115,9 +115,7 @@ pub(super) const COLUMN_BEYOND_BEVY_S_TEST: f32 = 1e18;
 /// entity alone.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     let affine = transform.affine();
-    // A zero in f32 is checked again in f64: a scale of 1e-16 on each axis
-    // (a valid, tiny box) gives a determinant that underflows f32.
-    if affine.matrix3.determinant() == 0.0 && affine.matrix3.as_dmat3().determinant() == 0.0 {
+    if crate::plugin::transform::collapses_an_axis(&affine.matrix3) {
         return Aabb::INVERTED;
     }
     // Bevy's tests may overflow on a column that long (see the constant):
