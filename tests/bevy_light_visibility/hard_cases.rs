@@ -201,3 +201,56 @@ fn casters_where_bevy_s_sphere_test_overflows_are_listed_as_bevy_lists_them() {
     let index = twins.apps[1].world().resource::<SpatialIndex<Renderable>>();
     index.validate().unwrap();
 }
+
+/// Bevy's layer test answers yes for the same `RenderLayers` component
+/// before it compares layers: a point light that also casts shadows (a
+/// `Mesh3d` on its own entity) casts into its own shadow maps even with
+/// no layers. An inactive camera keeps the list that names the light
+/// (Bevy keeps an inactive camera's lists), so the light is still looked
+/// at after its layers are emptied.
+#[test]
+fn a_light_that_casts_with_no_layers_sees_itself_as_bevy_does() {
+    let mut apps = [app(false), app(true)];
+    let ids = apps.each_mut().map(|app| {
+        let world = app.world_mut();
+        let camera = world
+            .spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0)))
+            .id();
+        // A bulb: the light and its mesh on one entity (no `Aabb`: the
+        // mesh handle names no asset), shadows on.
+        let light = world
+            .spawn((
+                PointLight {
+                    range: 20.0,
+                    shadow_maps_enabled: true,
+                    ..PointLight::default()
+                },
+                Mesh3d::default(),
+                Transform::default(),
+            ))
+            .id();
+        [camera, light]
+    });
+    // The active camera sees the light and lists it.
+    apps.iter_mut().for_each(App::update);
+    for (app, [camera, light]) in apps.iter_mut().zip(ids) {
+        let world = app.world_mut();
+        world.get_mut::<Camera>(camera).unwrap().is_active = false;
+        world.entity_mut(light).insert(RenderLayers::none());
+    }
+    for frame in 0..3 {
+        apps.iter_mut().for_each(App::update);
+        let [bevy, ours] = [0, 1].map(|side| {
+            let light = apps[side].world().entity(ids[side][1]);
+            let faces: Vec<usize> = light
+                .get::<CubemapVisibleEntities>()
+                .unwrap()
+                .iter()
+                .map(|face| face.entities.len())
+                .collect();
+            (light.get::<ViewVisibility>().unwrap().get(), faces)
+        });
+        assert_eq!(bevy, (true, vec![1; 6]), "frame {frame}: Bevy's own answer");
+        assert_eq!(bevy, ours, "frame {frame}");
+    }
+}

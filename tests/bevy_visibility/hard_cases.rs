@@ -151,3 +151,29 @@ fn entities_of_a_tiny_scale_are_indexed_and_seen_as_bevy_sees_them() {
     assert_eq!(index.unindexed().count(), 0);
     assert_eq!(index.len(), 200);
 }
+
+/// A camera is itself culled by Bevy (a `Camera` requires `Visibility`),
+/// and Bevy's layer test answers yes for the same `RenderLayers`
+/// component before it compares layers: a camera with no layers at all
+/// still sees itself, and so must the index's culling.
+#[test]
+fn a_camera_with_no_layers_sees_itself_as_bevy_does() {
+    let mut apps = [app(false), app(true)];
+    let cameras = apps.each_mut().map(|app| {
+        let world = app.world_mut();
+        let camera = (Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0));
+        world.spawn((camera, RenderLayers::none())).id()
+    });
+    for frame in 0..3 {
+        apps.iter_mut().for_each(App::update);
+        let [bevy, ours] = [0, 1].map(|side| {
+            let camera = apps[side].world().entity(cameras[side]);
+            let listed = camera.get::<VisibleEntities>().unwrap();
+            let mut listed: Vec<usize> = listed.entities.values().map(Vec::len).collect();
+            listed.sort_unstable();
+            (camera.get::<ViewVisibility>().unwrap().get(), listed)
+        });
+        assert!(bevy.0, "frame {frame}: Bevy's own answer");
+        assert_eq!(bevy, ours, "frame {frame}");
+    }
+}

@@ -18,10 +18,10 @@ use bevy_utils::Parallel;
 use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
-use super::radix;
 use super::rows::{RowScratch, decide_proven_by_rows};
 use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
+use super::{layers, radix};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
@@ -405,7 +405,7 @@ pub(super) fn may_be_seen(
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && sight.mask.intersects(mask.unwrap_or_default())
+        && layers::renders(sight.camera, &sight.mask, entity, mask)
         && !(has_range
             && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera)))
 }

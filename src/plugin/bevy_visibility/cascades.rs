@@ -76,6 +76,7 @@ impl Marks {
 pub(super) fn check_dir_light_visibility_from_index(
     mut directional_lights: Query<
         (
+            Entity,
             &DirectionalLight,
             &CascadesFrusta,
             &mut CascadesVisibleEntities,
@@ -96,7 +97,7 @@ pub(super) fn check_dir_light_visibility_from_index(
     let ranges = ranges.as_deref();
     let (scratch, marks) = &mut *scratch;
     scratch.gather_one_by_one(&outside_the_tree, &index);
-    for (light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
+    for (entity, light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
         // One list per cascade of every view that has cascades, as Bevy
         // keeps them.
         visible
@@ -121,7 +122,7 @@ pub(super) fn check_dir_light_visibility_from_index(
             let Some(lists) = visible.entities.get_mut(view) else {
                 continue;
             };
-            let decide = (&mask, *view, ranges);
+            let decide = ((entity, &mask), *view, ranges);
             for (frustum, list) in view_frusta.iter().zip(lists.iter_mut()) {
                 scratch.candidates.clear();
                 candidates(
@@ -174,7 +175,11 @@ pub(super) fn check_dir_light_visibility_from_index(
 fn decide_cascade(
     item: &CascadeCasterItem<'_, '_>,
     (frustum, proven): (&BevyFrustum, bool),
-    (mask, view, ranges): (&RenderLayers, Entity, Option<&VisibleEntityRanges>),
+    (mask, view, ranges): (
+        (Entity, &RenderLayers),
+        Entity,
+        Option<&VisibleEntityRanges>,
+    ),
     out: &mut Vec<Entity>,
 ) {
     let &(entity, inherited, entity_mask, aabb, transform, has_range, nfc) = item;
@@ -204,7 +209,11 @@ fn decide_cascade(
 fn mark_unbounded_casters(
     casters: &Query<CascadeCaster<'_>, CasterFilter>,
     one_by_one: &[Entity],
-    (mask, view, ranges): (&RenderLayers, Entity, Option<&VisibleEntityRanges>),
+    (mask, view, ranges): (
+        (Entity, &RenderLayers),
+        Entity,
+        Option<&VisibleEntityRanges>,
+    ),
     marks: &mut Marks,
 ) {
     for &entity in one_by_one {

@@ -22,7 +22,7 @@ use bevy_mesh::Mesh3d;
 use bevy_transform::prelude::GlobalTransform;
 use glam::{DVec3, Vec3, Vec3A};
 
-use super::Renderable;
+use super::{Renderable, layers};
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
 
@@ -152,7 +152,14 @@ pub(super) fn check_point_light_visibility_from_index(
                 let mask = mask.cloned().unwrap_or_default();
                 sphere_candidates(&index, &sphere, scratch);
                 let shape = Shape::Point(&sphere, frusta);
-                decide_all(&mut casters, scratch, &shape, &mask, lod_origin, ranges);
+                decide_all(
+                    &mut casters,
+                    scratch,
+                    &shape,
+                    (light, &mask),
+                    lod_origin,
+                    ranges,
+                );
                 for (face, list) in scratch.faces.iter_mut().enumerate() {
                     list.sort_unstable();
                     let dest = &mut visible.get_mut(face).entities;
@@ -168,7 +175,14 @@ pub(super) fn check_point_light_visibility_from_index(
                 let mask = mask.cloned().unwrap_or_default();
                 sphere_candidates(&index, &sphere, scratch);
                 let shape = Shape::Spot(&sphere, frustum);
-                decide_all(&mut casters, scratch, &shape, &mask, lod_origin, ranges);
+                decide_all(
+                    &mut casters,
+                    scratch,
+                    &shape,
+                    (light, &mask),
+                    lod_origin,
+                    ranges,
+                );
                 let list = &mut scratch.faces[0];
                 list.sort_unstable();
                 visible.entities.clear();
@@ -192,7 +206,7 @@ fn decide_all(
     casters: &mut Query<Caster<'_>, CasterFilter>,
     scratch: &mut LightScratch,
     shape: &Shape<'_>,
-    mask: &RenderLayers,
+    mask: (Entity, &RenderLayers),
     lod_origin: Option<Entity>,
     ranges: Option<&VisibleEntityRanges>,
 ) {
@@ -221,7 +235,7 @@ fn decide_all(
 fn decide_faces(
     item: &mut CasterItem<'_, '_>,
     shape: &Shape<'_>,
-    mask: &RenderLayers,
+    mask: (Entity, &RenderLayers),
     lod_origin: Option<Entity>,
     ranges: Option<&VisibleEntityRanges>,
     faces: &mut [Vec<Entity>; 6],
@@ -283,12 +297,12 @@ pub(super) fn may_cast(
     inherited: &InheritedVisibility,
     entity_mask: Option<&RenderLayers>,
     has_range: bool,
-    mask: &RenderLayers,
+    (light, mask): (Entity, &RenderLayers),
     origin: Option<Entity>,
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && mask.intersects(entity_mask.unwrap_or_default())
+        && layers::renders(light, mask, entity, entity_mask)
         && !(has_range
             && ranges.is_some_and(|r| {
                 origin.is_none_or(|origin| !r.entity_is_in_range_of_view(entity, origin))

@@ -13,6 +13,7 @@ mod cameras;
 mod cascades;
 mod columns;
 mod frustum_candidates;
+mod layers;
 #[cfg(feature = "bevy_light")]
 mod lights;
 mod orders;
