@@ -100,6 +100,56 @@ fn removing_local_bounds_leaves_the_last_world_box_in_place() {
     assert_eq!(index(&app).unwrap().min.x, 99.0);
 }
 
+/// Removing `SpatialBounds` takes an entity with `LocalBounds` out of the
+/// index; putting it back (whatever value it is given) brings the entity
+/// back at its world box, also after it moved meanwhile or when it did
+/// not move at all. A box written by hand is replaced by the world box.
+/// Read table by table and (a sparse disabling component registered) row
+/// by row.
+#[test]
+fn spatial_bounds_inserted_again_or_written_is_the_world_box() {
+    for row_by_row in [false, true] {
+        let mut app = app();
+        if row_by_row {
+            app.world_mut().register_disabling_component::<Asleep>();
+        }
+        let spawn = |app: &mut App, x: f32| {
+            app.world_mut()
+                .spawn((Transform::from_xyz(x, 0.0, 0.0), LocalBounds(local())))
+                .id()
+        };
+        let (moved, still) = (spawn(&mut app, 10.0), spawn(&mut app, 20.0));
+        app.update();
+        let index = |app: &App, e: Entity| app.world().resource::<SpatialIndex>().get(e);
+        for e in [moved, still] {
+            app.world_mut().entity_mut(e).remove::<SpatialBounds>();
+        }
+        app.world_mut()
+            .get_mut::<Transform>(moved)
+            .unwrap()
+            .translation
+            .x = 100.0;
+        app.update();
+        assert_eq!(index(&app, moved), None);
+        assert_eq!(index(&app, still), None);
+        let stale = Aabb::new(Vec3::splat(-9.0), Vec3::splat(-8.0)).unwrap();
+        app.world_mut()
+            .entity_mut(moved)
+            .insert(SpatialBounds::default());
+        app.world_mut()
+            .entity_mut(still)
+            .insert(SpatialBounds(stale));
+        app.update();
+        assert_eq!(index(&app, moved).map(|b| b.min.x), Some(99.0));
+        assert_eq!(index(&app, still).map(|b| b.min.x), Some(19.0));
+        // Written by hand: the world box again in the same frame.
+        app.world_mut().get_mut::<SpatialBounds>(still).unwrap().0 = stale;
+        app.update();
+        assert_eq!(index(&app, still).map(|b| b.min.x), Some(19.0));
+        app.world().resource::<SpatialIndex>().validate().unwrap();
+    }
+}
+
 /// A caster on a moving, turning, scaled turret casts from the turret each
 /// frame, not from the world origin: its local ray follows the
 /// `GlobalTransform` (the scale stretches nothing), `t` is in metres, the

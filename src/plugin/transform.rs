@@ -34,7 +34,9 @@ use crate::geometry::Aabb;
 /// the `GlobalTransform`) leaves that component, as Bevy leaves required
 /// components: the entity stays indexed at its last world box, which no
 /// longer follows the transform. Remove `SpatialBounds` too to take the
-/// entity out of the index.
+/// entity out of the index; inserting it again brings the entity back at
+/// its world box. A `SpatialBounds` written by hand on an entity with
+/// `LocalBounds` is replaced by the world box in the same frame.
 ///
 /// ```
 /// use bevy_app::prelude::*;
@@ -89,17 +91,24 @@ type TransformRow<'a> = (
     &'a mut SpatialBounds,
 );
 
-/// Writes the world box of every entity whose transform or local box
-/// changed since the last run, marking it changed only where it differs
-/// (Bevy's `set_if_neq`), so that the index's sync sees only real moves.
-fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
+/// Writes the world box of every entity whose transform, local box or
+/// `SpatialBounds` changed since the last run, marking it changed only
+/// where it differs (Bevy's `set_if_neq`), so that the index's sync sees
+/// only real moves.
+///
+/// `SpatialBounds` counts because it is this system's to write: one
+/// inserted again after it was removed (which took the entity out of the
+/// index, while its transform may have moved), or written by hand, is
+/// replaced by the world box at once. Its own writes carry the tick of
+/// its run, which the next run does not count as newer.
+fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>, mut written: Local<Vec<usize>>) {
     // Table by table where the query can be read so (an app's disabling
     // component stored in a sparse set makes it row by row).
     let tables = match entities.contiguous_iter_mut() {
         Ok(tables) => tables,
         Err(_) => {
             for (local, global, mut bounds) in &mut entities {
-                if local.is_changed() || global.is_changed() {
+                if local.is_changed() || global.is_changed() || bounds.is_changed() {
                     bounds.set_if_neq(SpatialBounds(world_box(&local, &global)));
                 }
             }
@@ -110,18 +119,27 @@ fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>) {
         let test = ChangeTest::new(globals.last_run_tick(), globals.this_run_tick());
         let this_run = globals.this_run_tick();
         let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(bounds);
-        let columns = [globals.changed_ticks_slice(), locals.changed_ticks_slice()];
+        written.clear();
+        let columns = [
+            globals.changed_ticks_slice(),
+            locals.changed_ticks_slice(),
+            ticks.changed(),
+        ];
         test.for_each_changed(columns, |row| {
             let world = SpatialBounds(world_box(&locals[row], &globals[row]));
             if values[row] != world {
-                // What `set_if_neq` writes. `SpatialBounds` keeps no
-                // summary tick for it to update (a test checks).
                 values[row] = world;
-                ticks.changed_mut()[row] = this_run;
-                let caller = Location::caller();
-                ticks.changed_by_mut().map(|by| by[row] = caller);
+                written.push(row);
             }
         });
+        // What `set_if_neq` writes, once the scan no longer reads these
+        // ticks. `SpatialBounds` keeps no summary tick for it to update (a
+        // test checks).
+        let caller = Location::caller();
+        for &row in written.iter() {
+            ticks.changed_mut()[row] = this_run;
+            ticks.changed_by_mut().map(|by| by[row] = caller);
+        }
     }
 }
 
