@@ -256,7 +256,9 @@ impl<L: Component> RayCasterHits<L> {
     }
 
     /// The ray that was cast this frame, in world space (the caster's ray
-    /// carried by its entity's transform, if it has one).
+    /// carried by its entity's transform, if it has one). A ray invalid as
+    /// the caster gave it ([`RayCasterHits::error`] set) is not carried:
+    /// it is reported as given, in the caster's own space.
     pub fn ray(&self) -> Option<Ray> {
         self.ray
     }
