@@ -155,6 +155,89 @@ mod tests {
         }
     }
 
+    /// The whole AVX walk against the four-lane walk on the same trees
+    /// and rays: the same hits in the same order with the same `t` bits,
+    /// the same final limit and the same nodes visited, from an empty
+    /// tree to one of several levels, every hit and first hit.
+    fn avx_walk_agrees<const W: usize>(seed: u64) -> usize {
+        use crate::query::ray_pair_tests::{Walked, alone, recorder};
+        use crate::scene::SceneRng;
+        use glam::Vec3;
+        let mut rng = SceneRng::new(seed);
+        let mut walked = 0;
+        for entries in [0u32, 1, 3, 17, 2_000] {
+            let mut tree = RTree::<u32, W>::with_settings(Default::default()).unwrap();
+            for key in 0..entries {
+                let at = Vec3::new(
+                    rng.range(0.0, 100.0),
+                    rng.range(0.0, 20.0),
+                    rng.range(0.0, 100.0),
+                );
+                let size = Vec3::new(
+                    rng.range(0.0, 6.0),
+                    rng.range(0.0, 6.0),
+                    rng.range(0.0, 6.0),
+                );
+                tree.insert(key, crate::Aabb::new(at, at + size).unwrap())
+                    .unwrap();
+            }
+            for round in 0..300 {
+                let origin = Vec3::new(
+                    rng.range(-10.0, 110.0),
+                    rng.range(-5.0, 25.0),
+                    rng.range(-10.0, 110.0),
+                );
+                // Tiny directions too: `t` then runs to huge values.
+                let scale = [1.0, 1e-30, 40.0][round % 3];
+                let max_t = [f32::INFINITY, rng.range(1.0, 120.0)][round % 2];
+                let Ok(ray) = Ray::new(origin, rng.direction() * scale, max_t) else {
+                    continue;
+                };
+                let test = RayTest::new(&ray);
+                if !walk_is_avx::<W>(&test) {
+                    continue;
+                }
+                for first in [false, true] {
+                    let scalar = alone(&tree, &test, ray.max_t, first);
+                    let (mut hits, mut stack, mut stats) =
+                        (Vec::new(), Vec::new(), QueryStats::default());
+                    let visit = recorder(&mut hits, ray.max_t, first);
+                    // SAFETY: `walk_is_avx` found AVX on this processor.
+                    #[allow(unsafe_code)]
+                    let end = unsafe {
+                        tree.walk_one_avx(
+                            tree.root(),
+                            &test,
+                            ray.max_t,
+                            &mut stack,
+                            &mut stats,
+                            visit,
+                        )
+                    };
+                    let avx: Walked = (hits, end, stats.nodes_visited);
+                    let bits = |w: &Walked| {
+                        let hits: Vec<(u32, u32)> =
+                            w.0.iter().map(|&(p, t)| (p, t.to_bits())).collect();
+                        (hits, w.1.to_bits(), w.2)
+                    };
+                    assert_eq!(bits(&avx), bits(&scalar), "{entries} entries, ray {round}");
+                    walked += 1;
+                }
+            }
+        }
+        walked
+    }
+
+    #[test]
+    fn the_avx_walk_agrees_bit_for_bit_with_the_four_lane_walk() {
+        let walked = avx_walk_agrees::<8>(11) + avx_walk_agrees::<16>(12);
+        if std::is_x86_feature_detected!("avx") {
+            assert!(walked > 2_000, "only {walked} walks took the AVX path");
+        } else {
+            assert_eq!(walked, 0, "no AVX, yet the AVX walk ran");
+        }
+    }
+
     #[test]
     fn width_four_and_flat_rays_keep_the_four_lane_walk() {
         let slanted = RayTest::new(&Ray::new(glam::Vec3::ZERO, glam::Vec3::ONE, 1.0).unwrap());

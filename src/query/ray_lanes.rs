@@ -230,6 +230,7 @@ pub(super) mod tests {
     fn lane_test_agrees_bit_for_bit_with_the_scalar_predicate() {
         four_lane_test_agrees::<4>();
         four_lane_test_agrees::<8>();
+        four_lane_test_agrees::<12>();
         four_lane_test_agrees::<16>();
     }
 }

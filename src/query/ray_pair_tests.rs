@@ -18,11 +18,11 @@ use crate::tree::{QueryStats, RTree};
 
 /// What one ray's walk gave: its hits in the order reported, its final
 /// limit, and the nodes it visited.
-type Walked = (Vec<(u32, f32)>, f32, u64);
+pub(super) type Walked = (Vec<(u32, f32)>, f32, u64);
 
 /// A visitor that records every hit and either keeps the limit (every hit)
 /// or shrinks it to the nearest hit so far (first hit), as the queries do.
-fn recorder(
+pub(super) fn recorder(
     hits: &mut Vec<(u32, f32)>,
     limit: f32,
     first_hit: bool,
@@ -37,7 +37,12 @@ fn recorder(
     }
 }
 
-fn alone<const W: usize>(tree: &RTree<u32, W>, test: &RayTest, limit: f32, first: bool) -> Walked {
+pub(super) fn alone<const W: usize>(
+    tree: &RTree<u32, W>,
+    test: &RayTest,
+    limit: f32,
+    first: bool,
+) -> Walked {
     let (mut hits, mut stack, mut stats) = (Vec::new(), Vec::new(), QueryStats::default());
     let end = tree.walk_with(
         tree.root(),

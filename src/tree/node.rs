@@ -363,6 +363,7 @@ pub(crate) mod tests {
     fn overlap_mask_agrees_bit_for_bit_with_the_scalar_predicate() {
         four_lane_masks_agree_with_the_scalar_predicate::<4>();
         four_lane_masks_agree_with_the_scalar_predicate::<8>();
+        four_lane_masks_agree_with_the_scalar_predicate::<12>();
         four_lane_masks_agree_with_the_scalar_predicate::<16>();
     }
 
