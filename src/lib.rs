@@ -183,8 +183,8 @@
 //!
 //! The crate's `unsafe` code sits in three places, each documented with
 //! the measurement that justifies it: the cache prefetch hint in
-//! `tree/prefetch.rs`, which box queries, `update_batch` and `optimize` use
-//! because they measured 10–20 % faster with it; the calls from the
+//! `tree/prefetch.rs`, which the updates and the queries use where it
+//! measured faster (box queries 10–20 %, the cold cull a third and more); the calls from the
 //! single-ray walk (`query/ray.rs`) and from a batch's pairs of rays from
 //! one point (`query/ray_batch.rs`) into their twins compiled for AVX and
 //! AVX-512 (`query/ray_avx.rs`, `query/ray_avx512.rs`), made only once a

@@ -22,9 +22,11 @@
 //! reads only the dense handle stamps, it asks for the entries' records
 //! ahead as well (one line each). `optimize` asks for a repacked node's
 //! leaves and their entries' records before gathering them (15 % less time
-//! in a probe). Rays, joins and culling
-//! measured no gain from it (they do more work per node, which already
-//! hides the loads), so they do not use it.
+//! in a probe). The queries measured cold (a frame's other work having
+//! evicted the tree) ask for what they will read next too: the cull, the
+//! joins, single rays, nearest and spheres the children they push, the
+//! cull and nearest the keys of the leaves they reach (`docs/performance.md`,
+//! "Cold caches").
 //!
 //! The prefetch intrinsic is an `unsafe fn` although it can neither fault
 //! nor change memory; the crate's other `unsafe` is the SIMD lane tests,
@@ -70,14 +72,17 @@ impl<K, const W: usize> RTree<K, W> {
     }
 
     /// Asks the CPU to start loading the keys of a leaf's entries, which
-    /// live apart from the leaf (one array indexed by proxy): the lines of
-    /// its first and last key. A leaf as bulk loading fills it (slots given
-    /// in leaf order) has its keys in one run between them, a line or two.
-    /// A leaf whose entries came since, from moves and inserts, gets two of
-    /// its keys asked for and the others read when reached: asking for every
-    /// key of such leaves cost a cull of the standard scene's maintained
-    /// tree 13 % more warm and gained nothing cold (57 → 54 µs without).
-    /// A hint only.
+    /// live apart from the leaf (one array indexed by proxy). A leaf as
+    /// bulk loading fills it (slots given in leaf order) has its keys in one
+    /// run, a line or two: the lines of its first and last key are asked
+    /// for. A leaf whose slots are scattered ([`slots_scattered`]: entries
+    /// inserted, respawned or moved in over a long session) gets every key
+    /// asked for: on a tree of the standard scene whose slots were given in
+    /// random order and then re-tiled, the cold cull took 196–212 µs
+    /// instead of 308–337, warm the same; on the queries bench's maintained
+    /// tree, whose leaves are mostly runs still, warm and cold the same
+    /// within noise. Asking for every key of every leaf not one exact run
+    /// cost that maintained tree 4 % warm. A hint only.
     #[inline(always)]
     pub(crate) fn prefetch_keys_of_leaf(&self, leaf: &super::node::Node<W>) {
         let keys = self.keys.as_ptr();
@@ -87,8 +92,14 @@ impl<K, const W: usize> RTree<K, W> {
         };
         // No bounds checks: a prefetch of any address is sound (see
         // `prefetch_address`), and a leaf's slots index `keys`.
-        prefetch_address(keys.wrapping_add(first as usize).cast());
-        prefetch_address(keys.wrapping_add(last as usize).cast());
+        if slots_scattered(slots) {
+            for &slot in slots {
+                prefetch_address(keys.wrapping_add(slot as usize).cast());
+            }
+        } else {
+            prefetch_address(keys.wrapping_add(first as usize).cast());
+            prefetch_address(keys.wrapping_add(last as usize).cast());
+        }
     }
 
     /// Asks the CPU to start loading what checking a handle of slot `index`
@@ -109,6 +120,17 @@ impl<K, const W: usize> RTree<K, W> {
             prefetch_lines(proxy);
         }
     }
+}
+
+/// Whether a leaf's slots (at least one) lie far apart: its first, middle
+/// and last slot each further than the leaf's length from the next. Three
+/// loads from one line; a run with a few entries from elsewhere (a leaf
+/// after some moves) is still a run, whose first and last keys' lines
+/// hold most of its keys.
+#[inline(always)]
+fn slots_scattered(slots: &[u32]) -> bool {
+    let (first, middle, last) = (slots[0], slots[slots.len() / 2], slots[slots.len() - 1]);
+    first.abs_diff(middle) as usize >= slots.len() && middle.abs_diff(last) as usize >= slots.len()
 }
 
 /// Requests every cache line of `value` (eight for a node of the default
@@ -163,5 +185,39 @@ mod tests {
         assert_eq!(before, after);
         assert_eq!(before, (0..=50).collect::<Vec<u32>>());
         tree.validate().unwrap();
+    }
+
+    /// The leaves of a bulk load are runs of slots; the leaves of the same
+    /// boxes given their slots in random order and then re-tiled are
+    /// scattered, nearly all of them.
+    #[test]
+    fn leaves_of_a_bulk_load_are_runs_and_of_shuffled_slots_scattered() {
+        use crate::scene::{SceneRng, TownScene};
+        let scene = TownScene::new(20_000, 5);
+        let scattered_leaves = |tree: &RTree<u32>| {
+            let leaves: Vec<_> = (0..tree.node_count() as u32)
+                .map(|i| tree.node(i))
+                .filter(|n| n.is_leaf() && n.len() > 0)
+                .collect();
+            let scattered = leaves
+                .iter()
+                .filter(|n| super::slots_scattered(&n.child[..n.len()]))
+                .count();
+            (scattered, leaves.len())
+        };
+        let (fresh, _) = scene.bulk_loaded_tree();
+        assert_eq!(scattered_leaves(&fresh).0, 0);
+        let mut order: Vec<u32> = (0..scene.len() as u32).collect();
+        let mut rng = SceneRng::new(9);
+        for i in (1..order.len()).rev() {
+            order.swap(i, rng.below(i + 1));
+        }
+        let mut shuffled = RTree::new();
+        for &i in &order {
+            shuffled.insert(i, scene.boxes()[i as usize]).unwrap();
+        }
+        shuffled.rebuild();
+        let (scattered, leaves) = scattered_leaves(&shuffled);
+        assert!(scattered * 10 > leaves * 9, "{scattered} of {leaves}");
     }
 }
