@@ -280,7 +280,8 @@ fn main() {
             let (visible, hits, pairs) = counts(&app);
             let d = *app.world().resource::<SpatialDiagnostics>();
             println!(
-                "frame {frame:4}: {} boxes updated, {visible} visible, {hits} of 2000 rays hit, \
+                "frame {frame:4}: {} box updates over the three indexes, \
+                 {visible} visible, {hits} of 2000 rays hit, \
                  {pairs} enemy-barrel pairs; index and queries {:.2} ms, whole frame {:.2} ms",
                 d.sync.updated,
                 index.as_secs_f64() * 1e3,

@@ -55,6 +55,20 @@
 //! The [`plugin`] module describes layers, joins, `SpatialQuery`, the
 //! diagnostics and what happens to entities with bad boxes.
 //!
+//! ## In a Bevy game
+//!
+//! With feature `bevy_camera`, `BevyVisibilityPlugin` (added after
+//! `SpatialIndexPlugin`) serves Bevy's own camera culling from the tree:
+//! every entity Bevy's CPU culling tests (Bevy's `Aabb` and
+//! `GlobalTransform`) is indexed with no component of the crate's, and
+//! every `ViewVisibility` and each camera's `VisibleEntities` come out as
+//! Bevy's own system makes them; with `bevy_light`, the shadow lists of
+//! point, spot and directional lights too. Feature `bevy` gives
+//! `LocalBounds`, a local box whose world box follows the entity's
+//! `GlobalTransform`, and `bevy_camera` gives `FollowBevyFrustum`, which
+//! makes a `CullingCamera` follow a Bevy camera's frustum. The README
+//! shows the setup and lists every feature.
+//!
 //! ## The contract
 //!
 //! Every answer equals what a brute-force loop over all live entries returns
@@ -132,10 +146,10 @@
 //!
 //! ## Accuracy options
 //!
-//! Two knobs trade precision for time; neither drops a right answer (but
-//! for slivers thinner than about 1e-11 of their distance from the eye,
-//! which exact mode may miss: a frustum of next to no volume, and the
-//! edge beside an endless wedge; contract, S7):
+//! Two knobs trade precision for time. Neither drops a correct answer,
+//! except that exact mode may miss slivers thinner than about 1e-11 of
+//! their distance from the eye (a frustum of next to no volume, the edge
+//! beside an endless wedge; contract, S7):
 //! - [`CullMode::Conservative`] (default) may report a large box near a
 //!   frustum edge that is really outside; [`CullMode::Exact`] removes those
 //!   with a separating-axis test in `f64`.
@@ -147,8 +161,9 @@
 //! query work only: answers stay exact.
 //!
 //! The node split ([`TreeSettings::split`]) trades insert time against the
-//! tree's shape. Measured on the standard scene at width 16
-//! (`cargo bench --bench tree -- split/`; `docs/performance.md`):
+//! tree's shape. Measured on the standard scene at width 16, in one run on
+//! a faster machine than the README's table (compare within a row;
+//! `cargo bench --bench tree -- split/`, `docs/performance.md`):
 //! 100,000 single inserts take 52 / 52 / 39 ms with
 //! [`SplitStrategy::RStar`] / `Quadratic` / `Median`, a frame's 10,000
 //! moves 0.41 / 0.43 / 0.43 ms, and 1,000 box queries on the churned tree
@@ -163,8 +178,9 @@
 //! 4 up to 16); 16 is the default. Box, ray and frustum lane tests run four
 //! lanes at a time, so a wider node costs little more to test and saves
 //! levels: on the standard scene the tree is 5 levels deep instead of 6.
-//! Measured on one machine with `cargo bench --bench tree` and `--bench
-//! queries`, width 8 against width 16: bulk load 25.6 against 19.0 ms,
+//! Measured in one run (a faster machine than the README's table) with
+//! `cargo bench --bench tree` and `--bench queries`, width 8 against
+//! width 16: bulk load 25.6 against 19.0 ms,
 //! 1,000 box queries 0.24 against 0.19 ms, a cull 0.100 against 0.073 ms,
 //! 1,000 incoherent rays 0.87 against 0.74 ms and the self join 8.2
 //! against 6.6 ms; a frame's 10,000 moves cost the same within noise.
@@ -174,6 +190,8 @@
 //!
 //! ## Layout
 //!
+//! - [`prelude`]: what a game imports (`use bevy_rtree::prelude::*`);
+//! - [`contract`]: the rules every answer is checked against;
 //! - [`plugin`]: the bevy_ecs / bevy_app integration;
 //! - [`geometry`]: boxes, rays, frustums, the error type and the predicates;
 //! - [`tree`]: the R-tree and its maintenance;
@@ -193,8 +211,10 @@
 //! be inlined into that walk (3 % faster); and
 //! the calls from the joins (`query/join.rs`) into their twins compiled for
 //! AVX-512 (`query/join_avx512.rs`, whose sixteen-lane load is the last
-//! `unsafe` block), likewise checked (self join 12–17 % faster; see the
+//! `unsafe` block), likewise checked (self join 12–17 % faster; see
 //! `docs/performance.md`). Everything else is safe code.
+// On docs.rs, each item behind a feature says which.
+#![cfg_attr(docsrs, feature(doc_cfg))]
 // Without the plugin, the crate docs' links to it have nothing to name.
 #![cfg_attr(not(feature = "plugin"), allow(rustdoc::broken_intra_doc_links))]
 // `deny` rather than `forbid` so that the fenced places can allow it.
