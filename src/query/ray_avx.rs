@@ -160,27 +160,14 @@ mod tests {
     /// the same final limit and the same nodes visited, from an empty
     /// tree to one of several levels, every hit and first hit.
     fn avx_walk_agrees<const W: usize>(seed: u64) -> usize {
-        use crate::query::ray_pair_tests::{Walked, alone, recorder};
+        use crate::query::ray_pair_tests::{Walked, alone, random_tree, recorder};
         use crate::scene::SceneRng;
         use glam::Vec3;
         let mut rng = SceneRng::new(seed);
         let mut walked = 0;
         for entries in [0u32, 1, 3, 17, 2_000] {
-            let mut tree = RTree::<u32, W>::with_settings(Default::default()).unwrap();
-            for key in 0..entries {
-                let at = Vec3::new(
-                    rng.range(0.0, 100.0),
-                    rng.range(0.0, 20.0),
-                    rng.range(0.0, 100.0),
-                );
-                let size = Vec3::new(
-                    rng.range(0.0, 6.0),
-                    rng.range(0.0, 6.0),
-                    rng.range(0.0, 6.0),
-                );
-                tree.insert(key, crate::Aabb::new(at, at + size).unwrap())
-                    .unwrap();
-            }
+            let world = Vec3::new(100.0, 20.0, 100.0);
+            let tree = random_tree::<W>(&mut rng, entries, world, (0.0, 6.0));
             for round in 0..300 {
                 let origin = Vec3::new(
                     rng.range(-10.0, 110.0),

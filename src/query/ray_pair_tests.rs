@@ -85,22 +85,34 @@ fn paired<const W: usize>(
     )
 }
 
-fn check_pairs<const W: usize>(seed: u64) {
-    let mut rng = SceneRng::new(seed);
+/// A tree of `entries` boxes (keys `0..entries`) with corners in
+/// `[0, world]` and sides in `sides`, inserted one by one.
+pub(super) fn random_tree<const W: usize>(
+    rng: &mut SceneRng,
+    entries: u32,
+    world: Vec3,
+    sides: (f32, f32),
+) -> RTree<u32, W> {
     let mut tree = RTree::<u32, W>::with_settings(Default::default()).unwrap();
-    for key in 0..3_000 {
+    for key in 0..entries {
         let at = Vec3::new(
-            rng.range(0.0, 200.0),
-            rng.range(0.0, 40.0),
-            rng.range(0.0, 200.0),
+            rng.range(0.0, world.x),
+            rng.range(0.0, world.y),
+            rng.range(0.0, world.z),
         );
         let size = Vec3::new(
-            rng.range(0.5, 8.0),
-            rng.range(0.5, 8.0),
-            rng.range(0.5, 8.0),
+            rng.range(sides.0, sides.1),
+            rng.range(sides.0, sides.1),
+            rng.range(sides.0, sides.1),
         );
         tree.insert(key, Aabb::new(at, at + size).unwrap()).unwrap();
     }
+    tree
+}
+
+fn check_pairs<const W: usize>(seed: u64) {
+    let mut rng = SceneRng::new(seed);
+    let tree = random_tree::<W>(&mut rng, 3_000, Vec3::new(200.0, 40.0, 200.0), (0.5, 8.0));
     let mut hits = 0;
     for pair in 0..400 {
         let origin = Vec3::new(
