@@ -149,14 +149,14 @@ pub(super) fn check_point_light_visibility_from_index(
                     continue;
                 }
                 let sphere = range_sphere(transform, point.range);
-                let mask = mask.cloned().unwrap_or_default();
-                sphere_candidates(&index, &sphere, scratch);
                 let shape = Shape::Point(&sphere, frusta);
+                let layers = (light, mask.unwrap_or_default());
                 decide_all(
+                    &index,
                     &mut casters,
                     scratch,
                     &shape,
-                    (light, &mask),
+                    layers,
                     lod_origin,
                     ranges,
                 );
@@ -172,14 +172,14 @@ pub(super) fn check_point_light_visibility_from_index(
                     continue;
                 }
                 let sphere = range_sphere(transform, spot.range);
-                let mask = mask.cloned().unwrap_or_default();
-                sphere_candidates(&index, &sphere, scratch);
                 let shape = Shape::Spot(&sphere, frustum);
+                let layers = (light, mask.unwrap_or_default());
                 decide_all(
+                    &index,
                     &mut casters,
                     scratch,
                     &shape,
-                    (light, &mask),
+                    layers,
                     lod_origin,
                     ranges,
                 );
@@ -200,9 +200,11 @@ fn range_sphere(transform: &GlobalTransform, range: f32) -> Sphere {
     }
 }
 
-/// Decides every candidate of a point or spot light (and every caster
-/// outside the tree), filling `scratch.faces`.
+/// Takes from the tree the candidates of a point or spot light's range
+/// sphere and decides them (and every caster outside the tree), filling
+/// `scratch.faces`.
 fn decide_all(
+    index: &SpatialIndex<Renderable>,
     casters: &mut Query<Caster<'_>, CasterFilter>,
     scratch: &mut LightScratch,
     shape: &Shape<'_>,
@@ -210,6 +212,8 @@ fn decide_all(
     lod_origin: Option<Entity>,
     ranges: Option<&VisibleEntityRanges>,
 ) {
+    let (Shape::Point(sphere, _) | Shape::Spot(sphere, _)) = shape;
+    sphere_candidates(index, sphere, scratch);
     scratch.faces.iter_mut().for_each(Vec::clear);
     let one_by_one = scratch.one_by_one.iter();
     for entity in scratch.candidates.iter().map(|c| &c.0).chain(one_by_one) {
