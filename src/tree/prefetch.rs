@@ -81,8 +81,9 @@ impl<K, const W: usize> RTree<K, W> {
     /// random order and then re-tiled, the cold cull took 196–212 µs
     /// instead of 308–337, warm the same; on the queries bench's maintained
     /// tree, whose leaves are mostly runs still, warm and cold the same
-    /// within noise. Asking for every key of every leaf not one exact run
-    /// cost that maintained tree 4 % warm. A hint only.
+    /// within noise. Asking for every key where only the first and last
+    /// slot lie far apart (a run with one entry from elsewhere counted as
+    /// scattered) cost that maintained tree 4 % warm. A hint only.
     #[inline(always)]
     pub(crate) fn prefetch_keys_of_leaf(&self, leaf: &super::node::Node<W>) {
         let keys = self.keys.as_ptr();

@@ -97,7 +97,9 @@ pub(super) fn check_dir_light_visibility_from_index(
     let ranges = ranges.as_deref();
     let (scratch, marks) = &mut *scratch;
     scratch.gather_one_by_one(&outside_the_tree, &index);
-    for (entity, light, frusta, mut visible, mask, light_visibility) in &mut directional_lights {
+    for (light_entity, light, frusta, mut visible, mask, light_visibility) in
+        &mut directional_lights
+    {
         // One list per cascade of every view that has cascades, as Bevy
         // keeps them.
         visible
@@ -122,7 +124,7 @@ pub(super) fn check_dir_light_visibility_from_index(
             let Some(lists) = visible.entities.get_mut(view) else {
                 continue;
             };
-            let decide = ((entity, &mask), *view, ranges);
+            let decide = ((light_entity, &mask), *view, ranges);
             for (frustum, list) in view_frusta.iter().zip(lists.iter_mut()) {
                 scratch.candidates.clear();
                 candidates(
@@ -175,7 +177,7 @@ pub(super) fn check_dir_light_visibility_from_index(
 fn decide_cascade(
     item: &CascadeCasterItem<'_, '_>,
     (frustum, proven): (&BevyFrustum, bool),
-    (mask, view, ranges): (
+    (layers, view, ranges): (
         (Entity, &RenderLayers),
         Entity,
         Option<&VisibleEntityRanges>,
@@ -188,7 +190,7 @@ fn decide_cascade(
         inherited,
         entity_mask,
         has_range,
-        mask,
+        layers,
         Some(view),
         ranges,
     ) {
@@ -209,7 +211,7 @@ fn decide_cascade(
 fn mark_unbounded_casters(
     casters: &Query<CascadeCaster<'_>, CasterFilter>,
     one_by_one: &[Entity],
-    (mask, view, ranges): (
+    (layers, view, ranges): (
         (Entity, &RenderLayers),
         Entity,
         Option<&VisibleEntityRanges>,
@@ -230,7 +232,7 @@ fn mark_unbounded_casters(
                 inherited,
                 entity_mask,
                 has_range,
-                mask,
+                layers,
                 origin,
                 ranges,
             )

@@ -135,6 +135,9 @@ pub(super) fn check_point_light_visibility_from_index(
         lod_origins.transmute_lens_filtered(),
         point_and_spot.transmute_lens_filtered(),
     );
+    // What a caster's visibility range is measured against: from where
+    // (the shadow level-of-detail origin), and the ranges.
+    let in_range = (lod_origin, ranges);
 
     // Point and spot lights, each once, as the cameras list them.
     scratch.checked.clear();
@@ -151,15 +154,7 @@ pub(super) fn check_point_light_visibility_from_index(
                 let sphere = range_sphere(transform, point.range);
                 let shape = Shape::Point(&sphere, frusta);
                 let layers = (light, mask.unwrap_or_default());
-                decide_all(
-                    &index,
-                    &mut casters,
-                    scratch,
-                    &shape,
-                    layers,
-                    lod_origin,
-                    ranges,
-                );
+                decide_all(&index, &mut casters, scratch, &shape, layers, in_range);
                 for (face, list) in scratch.faces.iter_mut().enumerate() {
                     list.sort_unstable();
                     let dest = &mut visible.get_mut(face).entities;
@@ -174,15 +169,7 @@ pub(super) fn check_point_light_visibility_from_index(
                 let sphere = range_sphere(transform, spot.range);
                 let shape = Shape::Spot(&sphere, frustum);
                 let layers = (light, mask.unwrap_or_default());
-                decide_all(
-                    &index,
-                    &mut casters,
-                    scratch,
-                    &shape,
-                    layers,
-                    lod_origin,
-                    ranges,
-                );
+                decide_all(&index, &mut casters, scratch, &shape, layers, in_range);
                 let list = &mut scratch.faces[0];
                 list.sort_unstable();
                 visible.entities.clear();
@@ -208,9 +195,8 @@ fn decide_all(
     casters: &mut Query<Caster<'_>, CasterFilter>,
     scratch: &mut LightScratch,
     shape: &Shape<'_>,
-    mask: (Entity, &RenderLayers),
-    lod_origin: Option<Entity>,
-    ranges: Option<&VisibleEntityRanges>,
+    layers: (Entity, &RenderLayers),
+    in_range: (Option<Entity>, Option<&VisibleEntityRanges>),
 ) {
     let (Shape::Point(sphere, _) | Shape::Spot(sphere, _)) = shape;
     sphere_candidates(index, sphere, scratch);
@@ -224,14 +210,7 @@ fn decide_all(
         if item.2.is_none() {
             continue;
         }
-        decide_faces(
-            &mut item,
-            shape,
-            mask,
-            lod_origin,
-            ranges,
-            &mut scratch.faces,
-        );
+        decide_faces(&mut item, shape, layers, in_range, &mut scratch.faces);
     }
 }
 
@@ -239,9 +218,8 @@ fn decide_all(
 fn decide_faces(
     item: &mut CasterItem<'_, '_>,
     shape: &Shape<'_>,
-    mask: (Entity, &RenderLayers),
-    lod_origin: Option<Entity>,
-    ranges: Option<&VisibleEntityRanges>,
+    layers: (Entity, &RenderLayers),
+    (lod_origin, ranges): (Option<Entity>, Option<&VisibleEntityRanges>),
     faces: &mut [Vec<Entity>; 6],
 ) {
     let (entity, inherited, view_visibility, entity_mask, aabb, transform, has_range, nfc) = item;
@@ -250,7 +228,7 @@ fn decide_faces(
         inherited,
         *entity_mask,
         *has_range,
-        mask,
+        layers,
         lod_origin,
         ranges,
     ) {
