@@ -177,3 +177,42 @@ fn a_camera_with_no_layers_sees_itself_as_bevy_does() {
         assert_eq!(bevy, ours, "frame {frame}");
     }
 }
+
+/// Two tables split over the pool's threads (with the `multi_threaded`
+/// executor, as in a game's development build): Bevy's parallel queries by
+/// table assert in a debug build that a batch holds its whole table, so
+/// the passes must not hand them runs smaller than a table there. Bevy's
+/// own culling, the oracle, runs the frame too.
+#[test]
+fn tables_split_over_threads_in_a_debug_build() {
+    let [mut bevy, mut ours] = [app(false), app(true)];
+    let meshes = [&mut bevy, &mut ours].map(|app| {
+        let world = app.world_mut();
+        world.spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0)));
+        (0..200)
+            .map(|i| {
+                let mut mesh = world.spawn((
+                    Mesh3d::default(),
+                    Aabb::from_min_max(Vec3::ZERO, Vec3::ONE),
+                    Transform::from_xyz(i as f32 * 0.05 - 5.0, 0.0, 0.0),
+                ));
+                if i % 2 == 0 {
+                    // A second table.
+                    mesh.insert(RenderLayers::layer(0));
+                }
+                mesh.id()
+            })
+            .collect::<Vec<_>>()
+    });
+    for _ in 0..3 {
+        bevy.update();
+        ours.update();
+        let seen = |app: &App, list: &[Entity]| -> Vec<bool> {
+            let visible = |&e: &Entity| app.world().get::<ViewVisibility>(e).unwrap().get();
+            list.iter().map(visible).collect()
+        };
+        let expected = seen(&bevy, &meshes[0]);
+        assert!(expected.iter().any(|&v| v) && expected.iter().any(|&v| !v));
+        assert_eq!(seen(&ours, &meshes[1]), expected);
+    }
+}

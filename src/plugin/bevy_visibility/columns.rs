@@ -19,6 +19,21 @@ use bevy_transform::prelude::GlobalTransform;
 use super::cameras::{Culled, Seen, Sight, may_be_seen, passes_frustum};
 use crate::tree::prefetch::prefetch_lines;
 
+/// Whether the passes split over several threads may read Bevy's tables
+/// in runs of rows (`contiguous_par_iter`), or must go row by row through
+/// Bevy's `par_iter`.
+///
+/// Bevy 0.20.1 hands each batch of a parallel contiguous query the rows of
+/// its run together with all of its table's entities, and its fetches of
+/// `&T`, `&mut T` and `Ref<T>` check with `debug_assert_eq!` that the two
+/// have one length: any batch smaller than its table panics in a build
+/// with bevy_ecs's debug assertions on (a game's usual development build,
+/// where `multi_threaded` is on by default). The rows themselves are the
+/// right ones (the entities are cut to the run), so an optimized build
+/// reads them by table; a debug build, whose profile gives bevy_ecs the
+/// same assertions as this crate, goes row by row.
+pub(super) const TABLES_SPLIT_ACROSS_THREADS: bool = !cfg!(debug_assertions);
+
 /// The columns of [`Culled`] for a run of rows; row `i` of every column is
 /// the entity `ids[i]`.
 pub(super) struct CulledColumns<'w> {

@@ -16,7 +16,7 @@ use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_utils::Parallel;
 
 use super::cameras::{Culled, Seen, Sight, View, decide};
-use super::columns::CulledColumns;
+use super::columns::{CulledColumns, TABLES_SPLIT_ACROSS_THREADS};
 
 /// One table's (or batch's) columns of [`Culled`].
 type Columns<'w, 's> = <Culled<'static> as ContiguousQueryData>::Contiguous<'w, 's>;
@@ -119,9 +119,14 @@ pub(super) fn decide_in_storage_order(
             lists.resize_with(sights.len(), Seen::default);
             lists
         };
-        match culled.contiguous_par_iter_mut() {
-            Ok(batches) => batches.for_each_init(lists, |lists, columns| walk(lists, columns)),
-            Err(_) => culled
+        let by_table = if TABLES_SPLIT_ACROSS_THREADS {
+            culled.contiguous_par_iter_mut().ok()
+        } else {
+            None
+        };
+        match by_table {
+            Some(batches) => batches.for_each_init(lists, |lists, columns| walk(lists, columns)),
+            None => culled
                 .par_iter_mut()
                 .for_each_init(lists, |lists, item| walk_items(lists, item)),
         }

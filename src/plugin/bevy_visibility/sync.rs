@@ -19,6 +19,7 @@ use bevy_transform::prelude::GlobalTransform;
 use bevy_utils::Parallel;
 use glam::Vec3;
 
+use super::columns::TABLES_SPLIT_ACROSS_THREADS;
 use super::{BevyVisibilitySettings, Renderable};
 use crate::geometry::Aabb;
 use crate::plugin::change_scan::ChangeTest;
@@ -202,9 +203,14 @@ pub(super) fn sync_renderables(
         // The scan of the change ticks and the world boxes on every thread;
         // the tree's writes stay on this one.
         let local = || per_thread.borrow_local_mut();
-        match scanned.contiguous_par_iter() {
-            Ok(tables) => tables.for_each_init(local, |local, table| scan_table(table, local)),
-            Err(_) => scanned
+        let by_table = if TABLES_SPLIT_ACROSS_THREADS {
+            scanned.contiguous_par_iter().ok()
+        } else {
+            None
+        };
+        match by_table {
+            Some(tables) => tables.for_each_init(local, |local, table| scan_table(table, local)),
+            None => scanned
                 .par_iter()
                 .for_each_init(local, |local, item| scan_row(item, local)),
         }
