@@ -406,3 +406,120 @@ fn a_cleared_entity_gets_no_handle_back() {
     assert!(app.world().get::<SpatialHandle>(kept).is_some());
     assert_eq!(indexed(&app), vec![kept]);
 }
+
+/// What changes while an entity is disabled (a layer's marker added, its
+/// opt-out removed) holds once it is enabled again, and nothing of it is
+/// indexed before.
+#[test]
+fn changes_made_while_disabled_hold_once_enabled() {
+    use bevy_ecs::entity_disabling::Disabled;
+    let mut app = app();
+    app.add_spatial_layer::<Enemy>();
+    let marked = app.world_mut().spawn(unit_at(0.0)).id();
+    let opted_out = app.world_mut().spawn((unit_at(3.0), NoSpatialIndex)).id();
+    app.update();
+    assert_eq!(indexed(&app), [marked]);
+    for entity in [marked, opted_out] {
+        app.world_mut().entity_mut(entity).insert(Disabled);
+    }
+    app.update();
+    app.world_mut().entity_mut(marked).insert(Enemy);
+    app.world_mut()
+        .entity_mut(opted_out)
+        .remove::<NoSpatialIndex>();
+    app.update();
+    assert_eq!(indexed(&app), []);
+    assert_eq!(indexed_in::<Enemy>(&app), []);
+    for entity in [marked, opted_out] {
+        app.world_mut().entity_mut(entity).remove::<Disabled>();
+    }
+    app.update();
+    assert_eq!(indexed(&app), sorted([marked, opted_out]));
+    assert_eq!(indexed_in::<Enemy>(&app), [marked]);
+}
+
+/// An entity moved from one layer to another by a system's commands
+/// leaves the first layer's index and joins the second's in that frame,
+/// and the join between the layers pairs it by its new layer.
+#[test]
+fn an_entity_moved_between_layers_by_commands_is_paired_by_its_new_layer() {
+    #[derive(Resource)]
+    struct Moving(Entity);
+    fn to_barrels(moving: Res<Moving>, mut commands: Commands) {
+        commands.entity(moving.0).remove::<Enemy>().insert(Barrel);
+    }
+    let mut app = app();
+    app.add_spatial_join::<Enemy, Barrel>(1.0, JoinMode::Euclidean);
+    let moving = app.world_mut().spawn((unit_at(0.0), Enemy)).id();
+    let barrel = app.world_mut().spawn((unit_at(0.5), Barrel)).id();
+    let enemy = app.world_mut().spawn((unit_at(1.0), Enemy)).id();
+    app.update();
+    let pairs = |app: &App| {
+        app.world()
+            .resource::<SpatialJoin<Enemy, Barrel>>()
+            .pairs()
+            .to_vec()
+    };
+    let mut expected = vec![(moving, barrel), (enemy, barrel)];
+    expected.sort_unstable();
+    assert_eq!(pairs(&app), expected);
+    app.insert_resource(Moving(moving));
+    app.add_systems(Update, to_barrels.run_if(run_once));
+    app.update();
+    assert_eq!(indexed_in::<Enemy>(&app), [enemy]);
+    assert_eq!(indexed_in::<Barrel>(&app), sorted([moving, barrel]));
+    let mut expected = vec![(enemy, barrel), (enemy, moving)];
+    expected.sort_unstable();
+    assert_eq!(pairs(&app), expected);
+}
+
+/// A culling camera removed and inserted again in one flush of commands
+/// keeps its list, and answers in that frame.
+#[test]
+fn a_camera_removed_and_inserted_again_in_one_flush_keeps_its_list() {
+    #[derive(Resource)]
+    struct Again(Entity);
+    fn insert_again(again: Res<Again>, mut commands: Commands) {
+        commands
+            .entity(again.0)
+            .remove::<CullingCamera>()
+            .insert(camera());
+    }
+    let mut app = app();
+    let seen = app.world_mut().spawn(unit_at(0.0)).id();
+    let cam = app.world_mut().spawn(camera()).id();
+    app.update();
+    let listed = |app: &App| {
+        let list = app.world().get::<VisibleEntityList>(cam);
+        list.map(|l| l.entities().to_vec())
+    };
+    assert_eq!(listed(&app), Some(vec![seen]));
+    app.insert_resource(Again(cam));
+    app.add_systems(Update, insert_again.run_if(run_once));
+    app.update();
+    assert_eq!(listed(&app), Some(vec![seen]));
+}
+
+/// A disabled caster casts no ray and a disabled camera culls nothing:
+/// no run of either is counted.
+#[test]
+fn disabled_casters_and_cameras_count_no_run() {
+    use bevy_ecs::entity_disabling::Disabled;
+    let mut app = app();
+    app.world_mut().spawn(unit_at(3.0));
+    let ray = Ray::new(Vec3::ZERO, Vec3::X, 100.0).unwrap();
+    let caster = RayCaster::new(ray, RayMode::First);
+    app.world_mut().spawn((caster.clone(), Disabled));
+    app.world_mut().spawn((camera(), Disabled));
+    app.update();
+    app.update();
+    let counted = diagnostics(&app);
+    assert_eq!((counted.culling.runs, counted.culling.queries), (0, 0));
+    assert_eq!((counted.rays.runs, counted.rays.queries), (0, 0));
+    // Enabled, both run.
+    app.world_mut().spawn(caster);
+    app.world_mut().spawn(camera());
+    app.update();
+    let counted = diagnostics(&app);
+    assert!(counted.culling.runs > 0 && counted.rays.runs > 0);
+}
