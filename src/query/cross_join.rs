@@ -13,7 +13,7 @@ use super::join::{
 };
 use crate::geometry::{Aabb, SpatialError};
 use crate::tree::RTree;
-use crate::tree::node::Node;
+use crate::tree::node::{Node, QueryCorners};
 
 /// The children of `node` whose bound overlaps `region`, each with the
 /// region cut down to its bound grown by `reach`: the items of a node that
@@ -25,7 +25,7 @@ fn children_in_region<'a, const W: usize>(
     reach: f32,
     masks: impl LaneMasks<W> + 'a,
 ) -> impl Iterator<Item = (u32, Aabb)> + 'a {
-    let mut mask = masks(node, region, node.used_lanes());
+    let mut mask = masks(node, &QueryCorners::of(region), node.used_lanes());
     std::iter::from_fn(move || {
         if mask == 0 {
             return None;

@@ -14,7 +14,7 @@ use glam::Vec3;
 use super::QueryWorkspace;
 use crate::geometry::predicates::{check_distance, within_chebyshev, within_euclidean};
 use crate::geometry::{Aabb, SpatialError};
-use crate::tree::node::Node;
+use crate::tree::node::{Node, QueryCorners};
 use crate::tree::{ProxyId, RTree};
 
 /// Which distance a join uses ([contract S8](crate::contract)).
@@ -208,14 +208,21 @@ pub(super) fn meet(a: &Aabb, b: &Aabb) -> Aabb {
 /// [`Node::overlap_mask_among`] computes it four lanes at a time, or its
 /// AVX-512 twin (`join_avx512.rs`) sixteen at a time. Both give the same
 /// bits, so the traversal and its answers are the same either way.
-pub(crate) trait LaneMasks<const W: usize>: Fn(&Node<W>, &Aabb, u32) -> u32 + Copy {}
+pub(crate) trait LaneMasks<const W: usize>:
+    Fn(&Node<W>, &QueryCorners, u32) -> u32 + Copy
+{
+}
 
-impl<const W: usize, L: Fn(&Node<W>, &Aabb, u32) -> u32 + Copy> LaneMasks<W> for L {}
+impl<const W: usize, L: Fn(&Node<W>, &QueryCorners, u32) -> u32 + Copy> LaneMasks<W> for L {}
 
 /// The four-lane box lane test, which every processor runs.
 #[inline(always)]
-pub(crate) fn four_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, lanes: u32) -> u32 {
-    node.overlap_mask_among(query, lanes)
+pub(crate) fn four_lane_masks<const W: usize>(
+    node: &Node<W>,
+    query: &QueryCorners,
+    lanes: u32,
+) -> u32 {
+    node.overlap_mask_among_corners(query, lanes)
 }
 
 /// Which two nodes a step of a join pairs, for the choices that differ.
@@ -257,7 +264,7 @@ pub(super) fn join_lane_pairs<const W: usize>(
             lane_pairs::<W, false>(na, lanes, na, above, true, true, test, ws, masks, emit)
         };
     }
-    let a_lanes = masks(na, region, na.used_lanes());
+    let a_lanes = masks(na, &QueryCorners::of(region), na.used_lanes());
     if pair == NodePair::OneTree && na.is_leaf() {
         // Two leaves of a self join: `na`'s lanes near the region go
         // outside, against all of `nb`'s. Testing `nb`'s lanes against the
@@ -274,7 +281,7 @@ pub(super) fn join_lane_pairs<const W: usize>(
             na, a_lanes, nb, all_of_nb, true, false, test, ws, masks, emit,
         );
     }
-    let b_lanes = masks(nb, region, nb.used_lanes());
+    let b_lanes = masks(nb, &QueryCorners::of(region), nb.used_lanes());
     // The side with fewer lanes near the other goes outside: each of its
     // lanes costs one test of the other side's groups. Chosen by value, so
     // that one copy of `lane_pairs` serves both ways.
@@ -359,7 +366,8 @@ fn lane_pairs<const W: usize, const LEAVES: bool>(
     while lanes != 0 {
         let o = lanes.trailing_zeros() as usize;
         lanes &= lanes - 1;
-        let mask = masks(inner, &grow(&outer.lane_box(o), test.reach), inner_lanes(o));
+        let reach = QueryCorners::of_grown_lane(outer, o, test.reach);
+        let mask = masks(inner, &reach, inner_lanes(o));
         partners[o] = mask;
         with_partners |= ((mask != 0) as u32) << o;
     }
@@ -583,7 +591,27 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
 #[cfg(test)]
 mod tests {
-    use super::lane_count;
+    use super::{grow, lane_count};
+    use crate::tree::node::{LaneSamples, QueryCorners};
+
+    /// The corners a join's inner step builds from a lane's rows are those
+    /// of the lane's box grown as `grow` grows it, bit for bit, on grid
+    /// values, arbitrary floats and the reaches a join uses.
+    #[test]
+    fn a_grown_lane_s_corners_are_the_grown_box_s() {
+        let mut samples = LaneSamples::new(5, 1e6);
+        for round in 0..2_000 {
+            let node = samples.node::<16>(round % 2 == 0, 16);
+            let by = [0.0, 5.0f32.next_up(), 1e-3, samples.value(false).abs()][round % 4];
+            for lane in 0..16 {
+                let from_rows = QueryCorners::of_grown_lane(&node, lane, by);
+                let from_box = QueryCorners::of(&grow(&node.lane_box(lane), by));
+                let bits = |c: [f32; 3]| c.map(f32::to_bits);
+                assert_eq!(bits(from_rows.min()), bits(from_box.min()), "round {round}");
+                assert_eq!(bits(from_rows.max()), bits(from_box.max()), "round {round}");
+            }
+        }
+    }
 
     #[test]
     fn lane_count_agrees_with_count_ones_on_every_sixteen_lane_mask() {

@@ -30,9 +30,8 @@ use std::ops::ControlFlow;
 
 use super::QueryWorkspace;
 use super::join::JoinTest;
-use crate::geometry::Aabb;
 use crate::tree::RTree;
-use crate::tree::node::Node;
+use crate::tree::node::{Node, QueryCorners};
 
 /// Lanes one AVX-512 test covers.
 pub(super) const LANES_PER_AVX512_TEST: usize = 16;
@@ -66,9 +65,13 @@ pub(super) fn sixteen_lanes<const W: usize>(row: &[f32; W], first: usize) -> __m
 /// multiple of sixteen.
 #[target_feature(enable = "avx512f")]
 #[inline]
-pub(super) fn avx512_lane_masks<const W: usize>(node: &Node<W>, query: &Aabb, lanes: u32) -> u32 {
-    let lo = query.min.to_array();
-    let hi = query.max.to_array();
+pub(super) fn avx512_lane_masks<const W: usize>(
+    node: &Node<W>,
+    query: &QueryCorners,
+    lanes: u32,
+) -> u32 {
+    let lo = query.min();
+    let hi = query.max();
     let mut mask = 0u32;
     for first in (0..W).step_by(LANES_PER_AVX512_TEST) {
         // Six independent compares, one per face, joined by a tree of ANDs.
@@ -142,7 +145,7 @@ mod tests {
             }
             // SAFETY: `avx512_tests_nodes` found AVX-512 on this processor.
             #[allow(unsafe_code)]
-            Some(unsafe { avx512_lane_masks(node, query, lanes) })
+            Some(unsafe { avx512_lane_masks(node, &QueryCorners::of(query), lanes) })
         });
         if std::is_x86_feature_detected!("avx512f") {
             assert!(
