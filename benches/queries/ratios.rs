@@ -96,17 +96,17 @@ pub(crate) fn paired_ratios(c: &Contenders) {
     let enemy_leaves = parry_leaves(&c.boxes, TownScene::ENEMIES);
     let barrel_leaves = parry_leaves(&c.boxes, TownScene::BARRELS);
     let (mut ws, mut out, mut peer_out) = (QueryWorkspace::default(), Vec::new(), Vec::new());
+    let our_cross_join = |ws: &mut QueryWorkspace, out: &mut Vec<(u32, u32)>| {
+        out.clear();
+        let (enemies, barrels) = (&c.bevy_enemies.tree, &c.bevy_barrels.tree);
+        let result = enemies.cross_join_into(barrels, d, JoinMode::Euclidean, ws, out);
+        result.expect("valid distance");
+        out.len()
+    };
     let ratio = super::common::paired::paired_ratio(
         ROUNDS,
         4,
-        || {
-            out.clear();
-            let (enemies, barrels) = (&c.bevy_enemies.tree, &c.bevy_barrels.tree);
-            let result =
-                enemies.cross_join_into(barrels, d, JoinMode::Euclidean, &mut ws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        },
+        || our_cross_join(&mut ws, &mut out),
         || {
             peer_out.clear();
             let (enemies, barrels) = (&enemy_leaves, &barrel_leaves);
@@ -125,14 +125,7 @@ pub(crate) fn paired_ratios(c: &Contenders) {
     let ratio = super::common::paired::paired_ratio(
         ROUNDS,
         4,
-        || {
-            out.clear();
-            let (enemies, barrels) = (&c.bevy_enemies.tree, &c.bevy_barrels.tree);
-            let result =
-                enemies.cross_join_into(barrels, d, JoinMode::Euclidean, &mut ws, &mut out);
-            result.expect("valid distance");
-            out.len()
-        },
+        || our_cross_join(&mut ws, &mut out),
         || {
             peer_out.clear();
             let (enemies, barrels) = (&c.parry_enemies.bvh, &c.parry_barrels.bvh);
