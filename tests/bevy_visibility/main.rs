@@ -61,6 +61,7 @@ fn app(ours: bool) -> App {
 
 mod app_setup;
 mod hard_cases;
+mod hard_changes;
 mod membership;
 mod random_scenes;
 mod twins;
