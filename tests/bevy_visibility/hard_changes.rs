@@ -17,31 +17,16 @@ fn hard_changes(twins: &mut Twins) {
         let i = twins.rng.below(n);
         let pair = twins.entities[i];
         let action = twins.rng.below(14);
-        let mut cloned: Option<[Entity; 2]> = None;
         let out = twins.both(|world, rng, side| {
             let Ok(mut entity) = world.get_entity_mut(pair[side]) else {
                 return None;
             };
             match action {
-                0 => {
-                    if entity.take::<InheritedVisibility>().is_none() {
-                        entity.insert(InheritedVisibility::VISIBLE);
-                    }
-                }
-                1 => {
-                    if entity.take::<ViewVisibility>().is_none() {
-                        entity.insert(ViewVisibility::default());
-                    }
-                }
-                2 => {
-                    if entity.take::<GlobalTransform>().is_none() {
-                        entity.insert(GlobalTransform::from_xyz(
-                            rng.range(-50.0, 50.0),
-                            1.0,
-                            rng.range(-50.0, 50.0),
-                        ));
-                    }
-                }
+                0 => take_or_give(&mut entity, || InheritedVisibility::VISIBLE),
+                1 => take_or_give(&mut entity, ViewVisibility::default),
+                2 => take_or_give(&mut entity, || {
+                    GlobalTransform::from_xyz(rng.range(-50.0, 50.0), 1.0, rng.range(-50.0, 50.0))
+                }),
                 3 => {
                     entity.remove::<VisibilityClass>();
                 }
@@ -54,11 +39,9 @@ fn hard_changes(twins: &mut Twins) {
                 5 => {
                     entity.insert(RenderLayers::from_layers(&[0, 100]));
                 }
-                6 => {
-                    if entity.take::<VisibilityRange>().is_none() {
-                        entity.insert(VisibilityRange::abrupt(0.0, rng.range(10.0, 80.0)));
-                    }
-                }
+                6 => take_or_give(&mut entity, || {
+                    VisibilityRange::abrupt(0.0, rng.range(10.0, 80.0))
+                }),
                 7 => {
                     entity.remove::<RenderableHandle>();
                 }
@@ -66,11 +49,7 @@ fn hard_changes(twins: &mut Twins) {
                     let id = entity.clone_and_spawn();
                     return Some(id);
                 }
-                9 => {
-                    if entity.take::<Aabb>().is_none() {
-                        entity.insert(random_aabb(rng));
-                    }
-                }
+                9 => take_or_give(&mut entity, || random_aabb(rng)),
                 10 => {
                     entity.insert(Disabled);
                 }
@@ -90,10 +69,7 @@ fn hard_changes(twins: &mut Twins) {
             None
         });
         if let [Some(a), Some(b)] = out {
-            cloned = Some([a, b]);
-        }
-        if let Some(pair) = cloned {
-            twins.entities.push(pair);
+            twins.entities.push([a, b]);
         }
     }
     // Cameras.
@@ -110,38 +86,27 @@ fn hard_changes(twins: &mut Twins) {
                 world.despawn(pair[side]);
             });
         }
-        2 if c > 1 => {
-            let k = 1 + twins.rng.below(c - 1);
-            let pair = twins.cameras[k];
-            twins.both(|world, _, side| {
-                let mut camera = world.entity_mut(pair[side]);
-                if camera.take::<NoCpuCulling>().is_none() {
-                    camera.insert(NoCpuCulling);
-                }
-            });
-        }
-        3 if c > 1 => {
-            let k = 1 + twins.rng.below(c - 1);
-            let pair = twins.cameras[k];
-            twins.both(|world, _, side| {
-                let mut camera = world.entity_mut(pair[side]);
-                if camera.take::<RenderLayers>().is_none() {
-                    camera.insert(RenderLayers::from_layers(&[1, 100]));
-                }
-            });
-        }
-        4 if c > 1 => {
-            let k = 1 + twins.rng.below(c - 1);
-            let pair = twins.cameras[k];
-            twins.both(|world, _, side| {
-                let mut camera = world.entity_mut(pair[side]);
-                if camera.take::<Disabled>().is_none() {
-                    camera.insert(Disabled);
-                }
-            });
-        }
+        2 if c > 1 => take_or_give_on_a_camera(twins, || NoCpuCulling),
+        3 if c > 1 => take_or_give_on_a_camera(twins, || RenderLayers::from_layers(&[1, 100])),
+        4 if c > 1 => take_or_give_on_a_camera(twins, || Disabled),
         _ => {}
     }
+}
+
+/// Takes `C` away from `entity` where it has one, gives it `give()` where
+/// it has none.
+fn take_or_give<C: Component>(entity: &mut EntityWorldMut, give: impl FnOnce() -> C) {
+    if entity.take::<C>().is_none() {
+        entity.insert(give());
+    }
+}
+
+/// [`take_or_give`] on one camera other than the first, the same in both
+/// Apps.
+fn take_or_give_on_a_camera<C: Component>(twins: &mut Twins, give: impl Fn() -> C) {
+    let k = 1 + twins.rng.below(twins.cameras.len() - 1);
+    let pair = twins.cameras[k];
+    twins.both(|world, _, side| take_or_give(&mut world.entity_mut(pair[side]), &give));
 }
 
 fn run_hard_changes(seed: u64, spread: f32, parallel: bool, frames: usize) {
