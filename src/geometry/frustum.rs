@@ -1,5 +1,7 @@
 //! View frustums as eye-relative half-spaces ([contract S7](crate::contract)).
 
+#[cfg(feature = "reflect")]
+use bevy_reflect::{ReflectDeserialize, ReflectSerialize};
 use glam::{Quat, Vec3};
 
 use super::SpatialError;
@@ -145,8 +147,12 @@ fn sum_at_least(terms: [f64; 4]) -> f64 {
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 // Opaque: its planes are checked and scaled on construction, which an
-// inspector editing fields one by one would bypass.
-#[cfg_attr(feature = "reflect", reflect(opaque, Debug, PartialEq, Clone))]
+// inspector editing fields one by one would bypass. Scenes save and load it
+// through serde (`frustum_serde.rs`), loading through the same check.
+#[cfg_attr(
+    feature = "reflect",
+    reflect(opaque, Debug, PartialEq, Clone, Serialize, Deserialize)
+)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frustum {
     eye: Vec3,

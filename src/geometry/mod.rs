@@ -7,6 +7,8 @@ mod bevy_types;
 mod error;
 mod frustum;
 mod frustum_sat;
+#[cfg(feature = "reflect")]
+mod frustum_serde;
 pub(crate) mod predicates;
 mod ray;
 

@@ -62,7 +62,7 @@ use crate::query::CullMode;
 pub struct FollowBevyFrustum<L: Component = SpatialBounds> {
     /// The cull mode of the [`CullingCamera<L>`].
     pub mode: CullMode,
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     _layer: PhantomData<fn() -> L>,
 }
 

@@ -3,6 +3,8 @@
 use bevy_ecs::prelude::*;
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectComponent;
+#[cfg(feature = "reflect")]
+use bevy_reflect::std_traits::ReflectDefault;
 
 use crate::geometry::Aabb;
 
@@ -39,7 +41,10 @@ use crate::geometry::Aabb;
 /// # Ok::<(), bevy_rtree::SpatialError>(())
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
+#[cfg_attr(
+    feature = "reflect",
+    reflect(Component, Default, Debug, PartialEq, Clone)
+)]
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 #[require(SpatialHandle)]
 pub struct SpatialBounds(pub Aabb);
@@ -93,6 +98,9 @@ impl Default for SpatialBounds {
 /// assert!(world.get::<NoSpatialIndex>(hidden).is_some());
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Component, Debug, PartialEq, Clone))]
+#[cfg_attr(
+    feature = "reflect",
+    reflect(Component, Default, Debug, PartialEq, Clone)
+)]
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct NoSpatialIndex;

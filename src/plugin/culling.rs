@@ -4,6 +4,8 @@
 use super::frame_queries::{self, FrameWorkspace};
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectComponent;
+#[cfg(feature = "reflect")]
+use bevy_reflect::std_traits::ReflectDefault;
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -53,7 +55,7 @@ pub struct CullingCamera<L: Component = SpatialBounds> {
     pub frustum: Frustum,
     /// Conservative (Bevy's convention, the default) or exact.
     pub mode: CullMode,
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -137,11 +139,11 @@ impl<L: Component> CullingCamera<L> {
 /// # Ok::<(), SpatialError>(())
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Component))]
+#[cfg_attr(feature = "reflect", reflect(Component, Default))]
 #[derive(Component)]
 pub struct VisibleEntityList<L: Component = SpatialBounds> {
     entities: Vec<Entity>,
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     _layer: PhantomData<fn() -> L>,
 }
 

@@ -3,6 +3,8 @@
 
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectResource;
+#[cfg(feature = "reflect")]
+use bevy_reflect::std_traits::ReflectDefault;
 use std::sync::Mutex;
 
 use bevy_ecs::prelude::*;
@@ -210,7 +212,10 @@ pub struct BevyVisibilityWork {
 /// assert_eq!(diagnostics.joins.runs, 0);
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Resource, Debug, PartialEq, Clone))]
+#[cfg_attr(
+    feature = "reflect",
+    reflect(Resource, Default, Debug, PartialEq, Clone)
+)]
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SpatialDiagnostics {
     /// Frames since the plugin was added.

@@ -277,7 +277,11 @@ impl Plugin for SpatialIndexPlugin {
             .register_type::<VisibleEntityList>()
             .register_type::<RayCaster>()
             .register_type::<RayCasterHits>()
-            .register_type::<SpatialDiagnostics>();
+            .register_type::<SpatialDiagnostics>()
+            // Reached by no registered field (`Frustum` is opaque; joins
+            // are not components): registered for scripts and inspectors.
+            .register_type::<crate::geometry::HalfSpace>()
+            .register_type::<crate::query::JoinMode>();
         #[cfg(feature = "bevy")]
         transform::build(app, self.schedule);
         #[cfg(feature = "bevy_camera")]

@@ -4,6 +4,8 @@
 use super::frame_queries::{self, FrameWorkspace};
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectComponent;
+#[cfg(feature = "reflect")]
+use bevy_reflect::std_traits::ReflectDefault;
 use std::marker::PhantomData;
 
 use bevy_ecs::prelude::*;
@@ -68,11 +70,11 @@ pub struct RayCaster<L: Component = SpatialBounds> {
     pub mode: RayMode,
     /// Which entities the ray may hit (not reflected: it may hold a
     /// closure).
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     pub filter: SpatialQueryFilter,
     /// Whether the caster's own entity is left out (the default).
     pub ignore_self: bool,
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     _layer: PhantomData<fn() -> L>,
 }
 
@@ -181,7 +183,7 @@ impl<L: Component> RayCaster<L> {
 /// # Ok::<(), SpatialError>(())
 /// ```
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
-#[cfg_attr(feature = "reflect", reflect(Component))]
+#[cfg_attr(feature = "reflect", reflect(Component, Default))]
 #[derive(Component)]
 pub struct RayCasterHits<L: Component = SpatialBounds> {
     hits: Vec<RayHit<Entity>>,
@@ -189,7 +191,7 @@ pub struct RayCasterHits<L: Component = SpatialBounds> {
     error: Option<SpatialError>,
     /// The ray that was cast, in world space.
     ray: Option<Ray>,
-    #[cfg_attr(feature = "reflect", reflect(ignore))]
+    #[cfg_attr(feature = "reflect", reflect(ignore, clone))]
     _layer: PhantomData<fn() -> L>,
 }
 
