@@ -199,20 +199,26 @@
 //! - [`scene`]: the deterministic standard scene used by the examples and
 //!   benchmarks.
 //!
-//! The crate's `unsafe` code sits in three places, each documented with
-//! the measurement that justifies it: the cache prefetch hint in
-//! `tree/prefetch.rs`, which the updates and the queries use where it
-//! measured faster (box queries 10–20 %, the cold cull a third and more); the calls from the
-//! single-ray walk (`query/ray.rs`) and from a batch's pairs of rays from
-//! one point (`query/ray_batch.rs`) into their twins compiled for AVX and
-//! AVX-512 (`query/ray_avx.rs`, `query/ray_avx512.rs`), made only once a
-//! run-time check has found those instructions (rays 11–15 % faster), with
-//! the AVX-512 walk's placing of children, an `unsafe fn` so that it can
-//! be inlined into that walk (3 % faster); and
-//! the calls from the joins (`query/join.rs`) into their twins compiled for
-//! AVX-512 (`query/join_avx512.rs`, whose sixteen-lane load is the last
-//! `unsafe` block), likewise checked (self join 12–17 % faster; see
-//! `docs/performance.md`). Everything else is safe code.
+//! The crate's `unsafe` code is of three kinds, each documented with the
+//! measurement that justifies it (`docs/performance.md`) and each block
+//! with why it is sound (`// SAFETY:`):
+//! - the cache prefetch hint in `tree/prefetch.rs`, which the updates and
+//!   the queries use where it measured faster (box queries 10–20 %, the
+//!   cold cull a third and more);
+//! - calls into twins compiled for AVX or AVX-512, made only once a
+//!   run-time check has found those instructions: from the single-ray walk
+//!   (`query/ray.rs`), a batch's pairs of rays from one point
+//!   (`query/ray_batch.rs`) and the self and cross joins (`query/join.rs`,
+//!   `query/cross_join.rs`) into `query/ray_avx.rs`, `query/ray_avx512.rs`
+//!   and `query/join_avx512.rs` (rays 11–15 % faster, the self join
+//!   12–17 %), and from the AVX-512 ray walk into its placing of children,
+//!   an `unsafe fn` so that it can be inlined there (3 % faster);
+//! - AVX-512 intrinsics in `query/ray_avx512.rs` (that placing) and
+//!   `query/join_avx512.rs` (a sixteen-lane load of a bounds-checked
+//!   slice).
+//!
+//! Tests hold every twin to its scalar path on processors that have its
+//! instructions. Everything else is safe code.
 // On docs.rs, each item behind a feature says which.
 #![cfg_attr(docsrs, feature(doc_cfg))]
 // Without the plugin, the crate docs' links to it have nothing to name.
