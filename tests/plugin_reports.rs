@@ -259,7 +259,7 @@ fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
     for i in 0..6_000 {
         app.world_mut().spawn(unit_at(i as f32));
     }
-    let bad = app.world_mut().spawn(SpatialBounds(Aabb::INVERTED)).id();
+    let bad = app.world_mut().spawn(SpatialBounds(nan_box())).id();
     app.update();
     assert_eq!(warnings_about(bad), 1);
     for _ in 0..2 {
@@ -281,9 +281,63 @@ fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
     app.update();
     app.world_mut()
         .entity_mut(bad)
-        .insert(SpatialBounds(Aabb::INVERTED));
+        .insert(SpatialBounds(nan_box()));
     app.update();
     assert_eq!(warnings_about(bad), 2);
+}
+
+/// A box with NaN corners.
+fn nan_box() -> Aabb {
+    Aabb {
+        min: Vec3::NAN,
+        max: Vec3::NAN,
+    }
+}
+
+/// The default box is a placeholder, "no box yet": the entity is left out
+/// until it gets a valid box, as with any invalid box, but it is neither
+/// warned about nor counted; an invalid box set later still is.
+#[test]
+fn a_placeholder_box_is_left_out_without_a_warning_or_a_count() {
+    capture_warnings();
+    let mut app = app();
+    // An id no other test of this binary reaches.
+    for i in 0..7_000 {
+        app.world_mut().spawn(unit_at(i as f32));
+    }
+    let placeholder = app.world_mut().spawn(SpatialBounds::default()).id();
+    let left_out = |app: &App| {
+        let index = app.world().resource::<SpatialIndex>();
+        index.validate().unwrap();
+        !index.contains(placeholder) && index.unindexed().any(|e| e == placeholder)
+    };
+    app.update();
+    assert!(left_out(&app));
+    assert_eq!(diagnostics(&app).invalid_total, 0);
+    // Given a box, indexed; the placeholder again, left out again.
+    app.world_mut()
+        .get_mut::<SpatialBounds>(placeholder)
+        .unwrap()
+        .0 = unit_at(-3.0).0;
+    app.update();
+    assert!(indexed(&app).contains(&placeholder));
+    app.world_mut()
+        .entity_mut(placeholder)
+        .insert(SpatialBounds::default());
+    app.update();
+    assert!(left_out(&app));
+    assert_eq!(diagnostics(&app).sync.invalid_skipped, 0);
+    assert_eq!(warnings_about(placeholder), 0);
+    // A box that is wrong rather than missing is reported, as ever.
+    app.world_mut()
+        .get_mut::<SpatialBounds>(placeholder)
+        .unwrap()
+        .0 = nan_box();
+    app.update();
+    assert!(left_out(&app));
+    assert_eq!(diagnostics(&app).sync.invalid_skipped, 1);
+    assert_eq!(diagnostics(&app).invalid_total, 1);
+    assert_eq!(warnings_about(placeholder), 1);
 }
 
 #[test]

@@ -199,7 +199,11 @@ fn the_first_frame_does_not_sync_the_startup_boxes_again() {
                 commands.spawn(SpatialBounds(Aabb::new(at, at + Vec3::ONE).unwrap()));
             }
             commands.spawn((SpatialBounds(unit), Enemy));
-            commands.spawn(SpatialBounds(Aabb::INVERTED));
+            // A box that is wrong (not the default placeholder): counted.
+            commands.spawn(SpatialBounds(Aabb {
+                min: Vec3::NAN,
+                max: Vec3::NAN,
+            }));
         });
     #[derive(Resource)]
     struct Moved(Option<Entity>);

@@ -49,6 +49,15 @@ impl Aabb {
         max: Vec3::splat(f32::NEG_INFINITY),
     };
 
+    /// What a world box that cannot be computed is (NaN corners): not valid,
+    /// so the plugin leaves the entity out and reports it, whereas it reads
+    /// [`Aabb::INVERTED`], the default `SpatialBounds`, as "no box yet".
+    #[cfg(feature = "bevy")]
+    pub(crate) const UNUSABLE: Aabb = Aabb {
+        min: Vec3::NAN,
+        max: Vec3::NAN,
+    };
+
     /// The box of all space (`min = -inf`, `max = +inf`): contains every
     /// box. Not valid as an entry.
     pub(crate) const EVERYWHERE: Aabb = Aabb {

@@ -27,7 +27,10 @@ use crate::geometry::Aabb;
 /// and inserted again keeps its `SpatialBounds`, and its warning).
 /// [`SpatialDiagnostics`](crate::plugin::SpatialDiagnostics) counts every
 /// time the sync skips an invalid box (each time one is set, and when an
-/// entity comes back with one).
+/// entity comes back with one). The default box
+/// (`SpatialBounds::default()`, [`Aabb::INVERTED`]) is a placeholder: the
+/// entity is left out until a valid box is set, with no warning and no
+/// count.
 ///
 /// ```
 /// use bevy_ecs::prelude::*;
@@ -80,7 +83,8 @@ impl SpatialHandle {
 }
 
 impl Default for SpatialBounds {
-    /// An inverted box: not indexed until a valid box is set.
+    /// An inverted box, the placeholder for "no box yet": not indexed until
+    /// a valid box is set, and neither warned about nor counted.
     fn default() -> Self {
         SpatialBounds(Aabb::INVERTED)
     }

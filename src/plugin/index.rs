@@ -342,7 +342,12 @@ pub(crate) fn apply_changes<L: Component>(
                 count.removed += 1;
             }
             index.unindexed.insert(entity);
-            if !report {
+            // The default box is a placeholder, "no box yet" (spawned with
+            // `SpatialBounds::default()`, or given `LocalBounds` after this
+            // frame's world boxes were written): left out like any invalid
+            // box, but nothing the user got wrong, so neither reported nor
+            // counted. Boxes that could not be computed are `UNUSABLE`.
+            if !report || aabb == Aabb::INVERTED {
                 continue;
             }
             count.invalid += 1;

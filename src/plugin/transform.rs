@@ -143,14 +143,15 @@ fn bounds_from_transforms(mut entities: Query<TransformRow<'_>>, mut written: Lo
     }
 }
 
-/// The world box of `local` under `global`, or the inverted box (refused
-/// by the index) where the transform collapses an axis or is not finite.
+/// The world box of `local` under `global`, or the unusable box (refused
+/// by the index, and reported) where the transform collapses an axis or is
+/// not finite.
 fn world_box(local: &LocalBounds, global: &GlobalTransform) -> Aabb {
     let affine = global.affine();
     if collapses_an_axis(&affine.matrix3) {
-        return Aabb::INVERTED;
+        return Aabb::UNUSABLE;
     }
-    local.0.transformed(&affine).unwrap_or(Aabb::INVERTED)
+    local.0.transformed(&affine).unwrap_or(Aabb::UNUSABLE)
 }
 
 /// Whether a transform collapses an axis: its determinant is zero in

@@ -195,3 +195,41 @@ fn a_stretched_parent_above_a_turned_child_is_no_collapse() {
     let diagnostics = app.world().resource::<SpatialDiagnostics>();
     assert_eq!(diagnostics.invalid_total, 0);
 }
+
+/// An entity given `LocalBounds` after this frame's world boxes were
+/// written (by a system between the plugin's sets) reaches the sync with
+/// the default box its `SpatialBounds` came with: a placeholder, left out
+/// without being counted as invalid, and indexed at its world box the next
+/// frame.
+#[test]
+fn local_bounds_given_after_the_world_boxes_wait_a_frame_uncounted() {
+    let mut app = app();
+    let spawned = |mut commands: Commands, mut done: Local<bool>| {
+        if !std::mem::replace(&mut *done, true) {
+            commands.spawn((Transform::from_xyz(5.0, 0.0, 0.0), LocalBounds(local())));
+        }
+    };
+    app.add_systems(
+        PostUpdate,
+        spawned
+            .after(SpatialIndexSystems::Bounds)
+            .before(SpatialIndexSystems::Sync),
+    );
+    app.update();
+    let mut query = app
+        .world_mut()
+        .query_filtered::<Entity, With<LocalBounds>>();
+    let entity = query.single(app.world()).unwrap();
+    let index = app.world().resource::<SpatialIndex>();
+    assert!(!index.contains(entity), "no world box yet");
+    let diagnostics = app.world().resource::<SpatialDiagnostics>();
+    assert_eq!(diagnostics.invalid_total, 0);
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    let expected = local().transformed(&Transform::from_xyz(5.0, 0.0, 0.0).compute_affine());
+    assert_eq!(index.get(entity), expected.ok());
+    assert_eq!(
+        app.world().resource::<SpatialDiagnostics>().invalid_total,
+        0
+    );
+}

@@ -111,23 +111,23 @@ pub(super) const COLUMN_BEYOND_BEVY_S_TEST: f32 = 1e18;
 /// The world box of a Bevy `Aabb` under a transform: the box around the
 /// oriented box Bevy's tests see, rounded outward ([contract S1](crate::contract)). An
 /// unusable one (NaN, a negative half extent, a collapsed axis, a column
-/// too long for Bevy's own test to be decided by a box) is the inverted
+/// too long for Bevy's own test to be decided by a box) is the unusable
 /// box, which the index refuses and counts: Bevy's test decides such an
 /// entity alone.
 pub(super) fn world_box(aabb: &BevyAabb, transform: &GlobalTransform) -> Aabb {
     let affine = transform.affine();
     if crate::plugin::transform::collapses_an_axis(&affine.matrix3) {
-        return Aabb::INVERTED;
+        return Aabb::UNUSABLE;
     }
     // Bevy's tests may overflow on a column that long (see the constant):
     // the entity is left to them.
     let columns = affine.matrix3.to_cols_array();
     if columns.iter().any(|v| v.abs() > COLUMN_BEYOND_BEVY_S_TEST) {
-        return Aabb::INVERTED;
+        return Aabb::UNUSABLE;
     }
     let center = Vec3::from(aabb.center);
     let half = Vec3::from(aabb.half_extents);
-    Aabb::from_oriented(center, half, &affine).unwrap_or(Aabb::INVERTED)
+    Aabb::from_oriented(center, half, &affine).unwrap_or(Aabb::UNUSABLE)
 }
 
 /// What the sync reads of a renderable, table by table: its change ticks
