@@ -51,6 +51,13 @@ fn an_inspector_reads_and_edits_a_box_and_the_index_follows() {
     }
 }
 
+/// The type registry of an App with the plugin (what it registers).
+fn plugin_registry() -> AppTypeRegistry {
+    let mut app = App::new();
+    app.add_plugins(SpatialIndexPlugin::default());
+    app.world().resource::<AppTypeRegistry>().clone()
+}
+
 /// A component written as a Bevy scene writes it (through the type
 /// registry, in RON) and read back into its concrete type.
 fn through_a_scene<T: FromReflect + TypePath>(
@@ -83,9 +90,7 @@ fn frustum_bits(frustum: &Frustum) -> Vec<u32> {
 
 #[test]
 fn a_scene_saves_and_loads_every_component_and_its_frustum_exactly() {
-    let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin::default());
-    let registry = app.world().resource::<AppTypeRegistry>().clone();
+    let registry = plugin_registry();
     let registry = registry.read();
 
     let bounds =
@@ -146,9 +151,7 @@ fn a_scene_saves_and_loads_every_component_and_its_frustum_exactly() {
 #[test]
 fn a_scene_edited_into_an_invalid_frustum_is_refused_not_loaded() {
     use serde::de::DeserializeSeed;
-    let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin::default());
-    let registry = app.world().resource::<AppTypeRegistry>().clone();
+    let registry = plugin_registry();
     let registry = registry.read();
     let frustum = Frustum::perspective(Vec3::ZERO, Quat::IDENTITY, 1.0, 1.5, 0.1, 100.0).unwrap();
     let saved = ron::to_string(&bevy_reflect::serde::ReflectSerializer::new(
@@ -182,9 +185,7 @@ fn a_scene_edited_into_an_invalid_frustum_is_refused_not_loaded() {
 #[test]
 fn an_inspector_clones_and_creates_the_components() {
     use bevy_reflect::std_traits::ReflectDefault;
-    let mut app = App::new();
-    app.add_plugins(SpatialIndexPlugin::default());
-    let registry = app.world().resource::<AppTypeRegistry>().clone();
+    let registry = plugin_registry();
     let registry = registry.read();
 
     // Cloned through reflection, the fields reflection ignores included.
