@@ -211,6 +211,17 @@ fn capture_warnings() {
     log::set_max_level(log::LevelFilter::Warn);
 }
 
+/// An app with `count` boxes spawned first, so that the next entity's id
+/// is one no other test of this binary reaches: the tests of warnings
+/// share one captured log, and each looks for its own entity's lines.
+fn app_whose_next_id_is(count: u32) -> App {
+    let mut app = app();
+    for i in 0..count {
+        app.world_mut().spawn(unit_at(i as f32));
+    }
+    app
+}
+
 /// The captured warnings that name `entity`.
 fn warnings_about(entity: Entity) -> usize {
     let name = format!("{entity} ");
@@ -221,12 +232,7 @@ fn warnings_about(entity: Entity) -> usize {
 #[test]
 fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
     capture_warnings();
-    let mut app = app();
-    // Other tests in this binary log too: give this entity an id none of
-    // them reaches.
-    for i in 0..5_000 {
-        app.world_mut().spawn(unit_at(i as f32));
-    }
+    let mut app = app_whose_next_id_is(5_000);
     let bad = app.world_mut().spawn(unit_at(0.0)).id();
     app.update();
     for x in [f32::NAN, f32::INFINITY, f32::NAN] {
@@ -254,11 +260,7 @@ fn an_invalid_box_is_reported_once_per_entity_however_often_it_is_set() {
 fn an_invalid_box_read_again_after_disabling_is_not_warned_about_again() {
     use bevy_ecs::entity_disabling::Disabled;
     capture_warnings();
-    let mut app = app();
-    // An id no other test of this binary reaches.
-    for i in 0..6_000 {
-        app.world_mut().spawn(unit_at(i as f32));
-    }
+    let mut app = app_whose_next_id_is(6_000);
     let bad = app.world_mut().spawn(SpatialBounds(nan_box())).id();
     app.update();
     assert_eq!(warnings_about(bad), 1);
@@ -300,11 +302,7 @@ fn nan_box() -> Aabb {
 #[test]
 fn a_placeholder_box_is_left_out_without_a_warning_or_a_count() {
     capture_warnings();
-    let mut app = app();
-    // An id no other test of this binary reaches.
-    for i in 0..7_000 {
-        app.world_mut().spawn(unit_at(i as f32));
-    }
+    let mut app = app_whose_next_id_is(7_000);
     let placeholder = app.world_mut().spawn(SpatialBounds::default()).id();
     let left_out = |app: &App| {
         let index = app.world().resource::<SpatialIndex>();
