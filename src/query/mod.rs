@@ -19,6 +19,8 @@ mod overlap;
 #[cfg(feature = "parallel")]
 mod parallel;
 #[cfg(feature = "parallel")]
+mod parallel_claim;
+#[cfg(feature = "parallel")]
 mod parallel_workspace;
 mod ray;
 #[cfg(target_arch = "x86_64")]

@@ -1,6 +1,6 @@
 //! Parallel batched rays, culling and joins (feature `parallel`).
 //!
-//! The work runs on bevy_tasks' [`ComputeTaskPool`], the pool a Bevy app
+//! The work runs on bevy_tasks' [`ComputeTaskPool`](bevy_tasks::ComputeTaskPool), the pool a Bevy app
 //! already runs its systems and `par_iter`s on: a second pool (rayon's, say)
 //! would start its own threads and compete with the schedule for the same
 //! cores. In an app with `TaskPoolPlugin` the pool has the app's thread
@@ -17,28 +17,19 @@
 //!   answers are concatenated in the order the single-threaded stack would
 //!   have reached them.
 //!
-//! Tasks are as many as the pool has threads, and the calling thread works
-//! as one of them: on the 2-core machine the benches ran on, a pool thread
-//! took 34 to 100 µs to start on a task when calls came back to back (up
-//! to 320 µs after a few milliseconds of idle), so more, smaller tasks
-//! lost more than they balanced. Work is claimed in pieces instead, so the calling
-//! thread does more of it while a pool thread is starting. When the calling
-//! thread runs out of work while a pool task still finishes its last piece,
-//! it spins for a short while (see `SPIN_WAIT`) rather than park: waking a
-//! parked thread costs as much as starting one.
+//! How the work is shared among the pool's threads: `parallel_claim.rs`.
 //!
 //! Small work runs on the calling thread: splitting costs a few
 //! microseconds per task, more than a few dozen rays or a small tree take.
 
-use std::ops::{ControlFlow, Range};
+use std::ops::ControlFlow;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::{Duration, Instant};
-
-use bevy_tasks::{ComputeTaskPool, TaskPool};
 
 use super::frustum::{PreparedView, fully_inside};
 use super::join::{JoinItem, JoinTest, four_lane_masks};
+use super::parallel_claim::{
+    expand_frontier, owners, reports_nothing, run_claimed, run_prepared, segment, task_count,
+};
 pub use super::parallel_workspace::ParallelWorkspace;
 use super::parallel_workspace::{RayRun, TaskScratch};
 use super::{CullMode, FRUSTUMS_PER_PASS, JoinMode, QueryWorkspace, RayMode, RayResults};
@@ -63,141 +54,12 @@ const ITEMS_PER_TASK: usize = 16;
 /// 1.58 to 1.62 ×.
 const RAY_RUNS_PER_TASK: usize = 8;
 
-/// How long the calling thread, out of work, spins while a pool task
-/// finishes its last item, before it leaves the wait to the pool's scope.
-/// The scope parks the thread, and a parked thread took about 40 µs to wake
-/// on the 2-core machine the benches ran on: longer than most last items
-/// take (a run of rays: about 20 µs). 1,000 incoherent rays on 2 threads
-/// went from 1.47–1.51 × to 1.66–1.97 × the single-threaded speed with the
-/// spin in a probe (medians of single calls), from 1.50–1.55 × to
-/// 1.61–1.79 × in the bench; the joins did not move.
-const SPIN_WAIT: Duration = Duration::from_micros(100);
-
-/// The pool the queries run on.
-fn pool() -> &'static TaskPool {
-    ComputeTaskPool::get_or_init(TaskPool::default)
-}
-
-/// How many tasks to split `units` of work into, at least `min_per_task`
-/// each; `1` means "run on the calling thread".
-pub(super) fn task_count(units: usize, min_per_task: usize) -> usize {
-    let threads = pool().thread_num();
-    if threads < 2 {
-        return 1;
-    }
-    // One task per thread: measured on 2 threads, more and smaller batches
-    // of rays cost more per ray than the better balance saves.
-    threads.min(units / min_per_task.max(1)).max(1)
-}
-
-/// Runs `body(item, task)` for every item on the pool: each task claims the
-/// next unclaimed item until none is left, so a thread that starts late or
-/// draws cheap items simply takes more of them. Each task notes the indices
-/// it took, in order, in its `taken`.
-fn run_claimed<T: Sync, K: Send>(
-    items: &[T],
-    tasks: &mut [TaskScratch<K>],
-    body: impl Fn(&T, &mut TaskScratch<K>) + Sync,
-) {
-    let next = AtomicUsize::new(0);
-    let (next, body) = (&next, &body);
-    let take = move |task: &mut TaskScratch<K>| {
-        task.taken.clear();
-        loop {
-            let index = next.fetch_add(1, Ordering::Relaxed);
-            let Some(item) = items.get(index) else { break };
-            task.taken.push(index as u32);
-            body(item, task);
-        }
-    };
-    let (first, rest) = tasks.split_first_mut().expect("at least one task");
-    if rest.is_empty() {
-        // One task: no scope to enter, no thread to wake.
-        take(first);
-        return;
-    }
-    let working = AtomicUsize::new(0);
-    let working = &working;
-    pool().scope(|scope| {
-        for task in rest.iter_mut() {
-            // Counted while it works, so that the calling thread knows
-            // whether a pool task is still busy when it runs out of work.
-            scope.spawn(async move {
-                working.fetch_add(1, Ordering::AcqRel);
-                take(task);
-                working.fetch_sub(1, Ordering::Release);
-            });
-        }
-        // The calling thread works too rather than wait.
-        take(first);
-        spin_while_working(working);
-    });
-}
-
-/// Spins while `working` pool tasks are still running, for at most
-/// [`SPIN_WAIT`]. A task that has not started yet is not waited for: the
-/// scope runs it on the calling thread if the pool has not, and it finds
-/// nothing left to claim.
-fn spin_while_working(working: &AtomicUsize) {
-    let start = Instant::now();
-    while working.load(Ordering::Acquire) > 0 && start.elapsed() < SPIN_WAIT {
-        std::hint::spin_loop();
-    }
-}
-
-/// For every item, the task that took it and its rank among that task's
-/// items, from each task's `taken` list.
-fn owners<'a>(taken: impl Iterator<Item = &'a [u32]>, items: usize, owner: &mut Vec<(u32, u32)>) {
-    owner.clear();
-    owner.resize(items, (0, 0));
-    for (task, indices) in taken.enumerate() {
-        for (rank, &index) in indices.iter().enumerate() {
-            owner[index as usize] = (task as u32, rank as u32);
-        }
-    }
-}
-
-/// Where answer list `list` of a task's `rank`-th item sits in that task's
-/// list, when the task records after each item the length of each of its
-/// `lists` answer lists (`ends[rank * lists + list]`).
-fn segment(ends: &[usize], rank: usize, lists: usize, list: usize) -> Range<usize> {
-    let start = if rank == 0 {
-        0
-    } else {
-        ends[(rank - 1) * lists + list]
-    };
-    start..ends[rank * lists + list]
-}
-
-/// Replaces the pending items of a depth-first traversal by the items they
-/// push, one level at a time, until there are at least `target` or the next
-/// step could report an answer. With `step` pushing in the traversal's own
-/// order, running the stack from the new frontier reaches every answer in
-/// the same order as from the old one: each item's pushes take its place.
-fn expand_frontier<T: Copy>(
-    frontier: &mut Vec<T>,
-    next: &mut Vec<T>,
-    target: usize,
-    may_report: impl Fn(T) -> bool,
-    mut step: impl FnMut(T, &mut Vec<T>),
-) {
-    while !frontier.is_empty()
-        && frontier.len() < target
-        && !frontier.iter().any(|&item| may_report(item))
-    {
-        next.clear();
-        for &item in frontier.iter() {
-            step(item, next);
-        }
-        std::mem::swap(frontier, next);
-    }
-}
-
-/// A visitor for steps that must not report (debug builds check it).
-fn reports_nothing<T>(_: T) -> ControlFlow<()> {
-    debug_assert!(false, "a frontier step reported an answer");
-    ControlFlow::Continue(())
-}
+/// The fewest rays in a run. Runs were first kept to `min_rays_per_task`
+/// rays (64 by default), which cut 1,000 rays into only 15 runs: on 16
+/// threads that is one run a task, with no runs left to even out the pool
+/// threads' late starts. A run's own cost (a batch's setup) is a few
+/// hundred nanoseconds, small against 16 rays' walks.
+const MIN_RAYS_PER_RUN: usize = 16;
 
 impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
     /// [`RTree::cast_rays`] on the task pool: the batch is cut into runs of
@@ -232,7 +94,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             return;
         }
         let runs = (count * RAY_RUNS_PER_TASK)
-            .min(rays.len() / pws.min_rays_per_task)
+            .min(rays.len() / pws.min_rays_per_task.min(MIN_RAYS_PER_RUN))
             .max(count);
         if pws.ray_runs.len() < runs {
             pws.ray_runs.resize_with(runs, || RayRun {
@@ -297,35 +159,38 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         out: &mut [Vec<K>],
     ) {
         pws.tasks(count);
-        let [frontier, next] = &mut pws.cull_frontier;
-        frontier.clear();
-        frontier.extend(self.cull_start(views));
-        let ws = &mut pws.tasks[0].ws;
-        expand_frontier(
-            frontier,
-            next,
-            count * ITEMS_PER_TASK,
-            // A subtree inside every plane is not cut further. (It is
-            // walked level by level like any other, so it could be: a view
-            // over the whole scene then goes to as many tasks as the root
-            // has children. Whether cutting it pays on 8 or 16 threads is
-            // still to be measured.)
-            |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
-            |item, pushed| {
-                ws.stats.nodes_visited += 1;
-                self.push_visible_children::<false>(views, item, true, pushed);
-            },
-        );
-        let frontier = &pws.cull_frontier[0];
-        let count = count.min(frontier.len()).max(1);
-        pws.last_split = count;
         let tasks = &mut pws.tasks[..count];
         for task in tasks.iter_mut() {
             task.keys.resize_with(views.len(), Vec::new);
             task.keys.iter_mut().for_each(Vec::clear);
             task.ends.clear();
         }
-        run_claimed(frontier, tasks, |&item, task| {
+        let [frontier, next] = &mut pws.cull_frontier;
+        let prepare = move |first: &mut TaskScratch<K>| {
+            // Moved into the closure's body (so that it runs once), the
+            // borrow the items come from can outlive the call.
+            let frontier = { frontier };
+            frontier.clear();
+            frontier.extend(self.cull_start(views));
+            let ws = &mut first.ws;
+            expand_frontier(
+                frontier,
+                next,
+                count * ITEMS_PER_TASK,
+                // A subtree inside every plane is not cut further: cutting
+                // it too (it is walked level by level and reports nothing
+                // above its leaves) measured worse on the 16-core machine,
+                // four views 2.30 → 2.11 × at 8 threads and 2.15 → 1.53 × at
+                // 16 (docs/performance.md, "On several threads").
+                |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
+                |item, pushed| {
+                    ws.stats.nodes_visited += 1;
+                    self.push_visible_children::<false>(views, item, true, pushed);
+                },
+            );
+            &frontier[..]
+        };
+        let frontier = run_prepared(tasks, prepare, |&item, task| {
             let keys = &mut task.keys;
             let _ =
                 self.cull_subtree::<false, _>(views, item, &mut task.ws, &mut |view, key, _| {
@@ -334,6 +199,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
                 });
             task.ends.extend(keys.iter().map(Vec::len));
         });
+        pws.last_split = count.min(frontier.len()).max(1);
         let owner = &mut pws.owner;
         owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's answers come first.
@@ -440,35 +306,39 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         Drain: Fn(&mut QueryWorkspace, &mut Vec<(K, K)>) -> ControlFlow<()> + Sync,
     {
         pws.tasks(count);
-        let ws = &mut pws.tasks[0].ws;
-        let [frontier, next] = &mut pws.join_frontier;
-        frontier.clear();
-        frontier.push(start);
-        expand_frontier(
-            frontier,
-            next,
-            count * ITEMS_PER_TASK,
-            may_report,
-            |pair, pushed| {
-                ws.join_stack.clear();
-                let _ = step(pair, ws, &mut |_, _| reports_nothing(()));
-                pushed.extend_from_slice(&ws.join_stack);
-            },
-        );
-        let count = count.min(frontier.len()).max(1);
         let tasks = &mut pws.tasks[..count];
-        pws.last_split = count;
-        let frontier = &pws.join_frontier[0];
         for task in tasks.iter_mut() {
             task.pairs.clear();
             task.ends.clear();
         }
-        run_claimed(frontier, tasks, |&item, task| {
+        let [frontier, next] = &mut pws.join_frontier;
+        let prepare = move |first: &mut TaskScratch<K>| {
+            // Moved into the closure's body (so that it runs once), the
+            // borrow the items come from can outlive the call.
+            let frontier = { frontier };
+            frontier.clear();
+            frontier.push(start);
+            let ws = &mut first.ws;
+            expand_frontier(
+                frontier,
+                next,
+                count * ITEMS_PER_TASK,
+                may_report,
+                |pair, pushed| {
+                    ws.join_stack.clear();
+                    let _ = step(pair, ws, &mut |_, _| reports_nothing(()));
+                    pushed.extend_from_slice(&ws.join_stack);
+                },
+            );
+            &frontier[..]
+        };
+        let frontier = run_prepared(tasks, prepare, |&item, task| {
             task.ws.join_stack.clear();
             task.ws.join_stack.push(item);
             let _ = drain(&mut task.ws, &mut task.pairs);
             task.ends.push(task.pairs.len());
         });
+        pws.last_split = count.min(frontier.len()).max(1);
         let owner = &mut pws.owner;
         owners(tasks.iter().map(|t| &t.taken[..]), frontier.len(), owner);
         // A stack runs its last items first: the last item's pairs come first.

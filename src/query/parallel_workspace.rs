@@ -165,7 +165,7 @@ impl<K> ParallelWorkspace<K> {
         if entries < self.min_entries_to_split {
             1
         } else {
-            super::parallel::task_count(usize::MAX, 1)
+            super::parallel_claim::task_count(usize::MAX, 1)
         }
     }
 
