@@ -408,7 +408,8 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs, threads: usize) {
     rows.push(("self join", ratio));
 
     // The paired ratio is single ÷ parallel here: the speed-up.
-    let mut table = format!(
+    let mut table = pool_start_times(threads);
+    table += &format!(
         "speed-up on a pool of {threads} threads = one thread's time ÷ the `par_` call's, \
          alternating blocks, {ROUNDS} rounds\n\n\
          | query | one thread (µs) | `par_` (µs) | speed-up, median | speed-up, range |\n\
@@ -427,6 +428,86 @@ fn paired_speed_ups(trees: &Trees, inputs: &Inputs, threads: usize) {
     if let Err(e) = std::fs::write(path, &table) {
         eprintln!("could not write {}: {e}", path.display());
     }
+}
+
+/// How long the pool's threads take to start on a call's tasks, the floor
+/// under every split: the calling thread spawns one task per other pool
+/// thread and spins until all have started (or 2 ms have passed). Returns a
+/// line for the report with the medians, over `REPEATS` calls made 50 µs
+/// apart (as a frame's back-to-back queries are), of the time until the
+/// first, the middle and the last task started.
+fn pool_start_times(threads: usize) -> String {
+    const REPEATS: usize = 200;
+    if threads < 2 {
+        return String::new();
+    }
+    let pool = bevy_tasks::ComputeTaskPool::get();
+    let tasks = threads - 1;
+    let mut starts: Vec<Vec<f64>> = vec![Vec::with_capacity(REPEATS); tasks];
+    for _ in 0..REPEATS {
+        let pause = Instant::now();
+        while pause.elapsed() < Duration::from_micros(50) {
+            std::hint::spin_loop();
+        }
+        let started: Vec<std::sync::atomic::AtomicU64> =
+            (0..tasks).map(|_| Default::default()).collect();
+        let count = std::sync::atomic::AtomicUsize::new(0);
+        let t0 = Instant::now();
+        pool.scope(|scope| {
+            for _ in 0..tasks {
+                let (started, count) = (&started, &count);
+                scope.spawn(async move {
+                    let ns = t0.elapsed().as_nanos() as u64;
+                    let k = count.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+                    started[k].store(ns, std::sync::atomic::Ordering::Release);
+                });
+            }
+            while count.load(std::sync::atomic::Ordering::Acquire) < tasks
+                && t0.elapsed() < Duration::from_millis(2)
+            {
+                std::hint::spin_loop();
+            }
+        });
+        let mut ns: Vec<u64> = started
+            .iter()
+            .map(|a| a.load(std::sync::atomic::Ordering::Acquire))
+            .collect();
+        ns.sort_unstable();
+        for (k, ns) in ns.iter().enumerate() {
+            starts[k].push(*ns as f64 / 1e3);
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    if tasks == 1 {
+        return format!(
+            "pool start: the calling thread spawns 1 task; median over {REPEATS} calls \
+             of the time until it started {:.1} µs\n\n",
+            median(&mut starts[0]),
+        );
+    }
+    let (first, middle, last) = (0, tasks / 2, tasks - 1);
+    format!(
+        "pool start: the calling thread spawns {tasks} tasks; medians over {REPEATS} calls \
+         of the time until the first started {:.1} µs, the {} {:.1} µs, the last {:.1} µs\n\n",
+        median(&mut starts[first]),
+        ordinal(middle + 1),
+        median(&mut starts[middle]),
+        median(&mut starts[last]),
+    )
+}
+
+fn ordinal(n: usize) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (1, 11) | (2, 12) | (3, 13) => "th",
+        (1, _) => "st",
+        (2, _) => "nd",
+        (3, _) => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
 }
 
 criterion_group! {

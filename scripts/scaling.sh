@@ -31,6 +31,13 @@ run)
     {
         echo "# Scaling on $(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | xargs)"
         echo
+        # Whether `taskset -c 0-(n-1)` picks n cores or hyperthread siblings.
+        echo '```'
+        lscpu 2>/dev/null | grep -E '^(Thread|Core|Socket|NUMA node|L2|L3)' || true
+        lscpu -e=CPU,CORE,SOCKET 2>/dev/null | head -17 | tr '\n' ' ' || true
+        echo
+        echo '```'
+        echo
     } >"$report"
     for n in 1 2 4 8 16; do
         if [ "$n" -gt "$cores" ]; then
@@ -43,8 +50,8 @@ run)
             taskset -c "0-$last" scaling-bin/parallel --bench >"$out/parallel_$n.log" 2>&1 || true
         cat "$out/paired_$n.md" >>"$report" 2>/dev/null || tail -5 "$out/parallel_$n.log" >>"$report"
         echo >>"$report"
-        echo '`town` through the plugin, 120 frames:' >>"$report"
-        taskset -c "0-$last" scaling-bin/town --frames 120 --threads "$n" 2>&1 |
+        echo '`town` through the plugin, 300 frames:' >>"$report"
+        taskset -c "0-$last" scaling-bin/town --frames 300 --threads "$n" 2>&1 |
             grep -E 'task pool|summary' >>"$report" || true
         echo >>"$report"
         rm -f "$out/paired_$n.md" "$out/parallel_$n.log"
