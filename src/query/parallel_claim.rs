@@ -69,10 +69,11 @@ pub(super) fn run_claimed<T: Sync, K: Send>(
 }
 
 /// [`run_claimed`] over items that `prepare` makes on the calling thread
-/// (with the first task's scratch) once the pool tasks are spawned: the
-/// pool's threads wake one after another, microseconds each, and they wake
-/// while the items are made instead of after. A pool task that starts
-/// before the items are made waits for them. Returns the items.
+/// (with the first task's scratch) once the pool tasks are spawned: a pool
+/// thread takes about 10 µs to start on a task (see the module docs), and
+/// the threads start while the items are made instead of after. A pool
+/// task that starts before the items are made waits for them. Returns the
+/// items.
 pub(super) fn run_prepared<'a, T: Sync + 'a, K: Send>(
     tasks: &mut [TaskScratch<K>],
     prepare: impl FnOnce(&mut TaskScratch<K>) -> &'a [T],
@@ -291,7 +292,11 @@ mod tests {
             if levels.clone().max() != levels.min() {
                 assert!(frontier.len() < target + width as usize, "target {target}");
             }
-            assert_eq!(stack_order(&frontier, width, depth), whole, "target {target}");
+            assert_eq!(
+                stack_order(&frontier, width, depth),
+                whole,
+                "target {target}"
+            );
         }
     }
 
@@ -300,7 +305,9 @@ mod tests {
         let items: Vec<u32> = (0..1000).collect();
         let threads = pool().thread_num().max(2);
         let mut tasks: Vec<TaskScratch<u32>> = (0..threads).map(|_| Default::default()).collect();
-        run_claimed(&items, &mut tasks, |&item, task| task.pairs.push((item, item)));
+        run_claimed(&items, &mut tasks, |&item, task| {
+            task.pairs.push((item, item))
+        });
         let mut owner = Vec::new();
         owners(tasks.iter().map(|t| &t.taken[..]), items.len(), &mut owner);
         for (index, &(task, rank)) in owner.iter().enumerate() {
