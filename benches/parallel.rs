@@ -36,6 +36,7 @@
 //! `target/criterion/parallel_paired_speed_ups.md`.
 
 use std::hint::black_box;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use bevy_rtree::scene::TownScene;
@@ -449,29 +450,23 @@ fn pool_start_times(threads: usize) -> String {
         while pause.elapsed() < Duration::from_micros(50) {
             std::hint::spin_loop();
         }
-        let started: Vec<std::sync::atomic::AtomicU64> =
-            (0..tasks).map(|_| Default::default()).collect();
-        let count = std::sync::atomic::AtomicUsize::new(0);
+        let started: Vec<AtomicU64> = (0..tasks).map(|_| Default::default()).collect();
+        let count = AtomicUsize::new(0);
         let t0 = Instant::now();
         pool.scope(|scope| {
             for _ in 0..tasks {
                 let (started, count) = (&started, &count);
                 scope.spawn(async move {
                     let ns = t0.elapsed().as_nanos() as u64;
-                    let k = count.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
-                    started[k].store(ns, std::sync::atomic::Ordering::Release);
+                    let k = count.fetch_add(1, Ordering::AcqRel);
+                    started[k].store(ns, Ordering::Release);
                 });
             }
-            while count.load(std::sync::atomic::Ordering::Acquire) < tasks
-                && t0.elapsed() < Duration::from_millis(2)
-            {
+            while count.load(Ordering::Acquire) < tasks && t0.elapsed() < Duration::from_millis(2) {
                 std::hint::spin_loop();
             }
         });
-        let mut ns: Vec<u64> = started
-            .iter()
-            .map(|a| a.load(std::sync::atomic::Ordering::Acquire))
-            .collect();
+        let mut ns: Vec<u64> = started.iter().map(|a| a.load(Ordering::Acquire)).collect();
         ns.sort_unstable();
         for (k, ns) in ns.iter().enumerate() {
             starts[k].push(*ns as f64 / 1e3);
