@@ -28,7 +28,7 @@ use std::sync::Mutex;
 use super::frustum::{PreparedView, fully_inside};
 use super::join::{JoinItem, JoinTest, four_lane_masks};
 use super::parallel_claim::{
-    expand_frontier, owners, reports_nothing, run_claimed, run_prepared, segment, task_count,
+    cut_frontier, owners, reports_nothing, run_claimed, run_prepared, segment, task_count,
 };
 pub use super::parallel_workspace::ParallelWorkspace;
 use super::parallel_workspace::{RayRun, TaskScratch};
@@ -170,25 +170,23 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
             // Moved into the closure's body (so that it runs once), the
             // borrow the items come from can outlive the call.
             let frontier = { frontier };
-            frontier.clear();
-            frontier.extend(self.cull_start(views));
             let ws = &mut first.ws;
-            expand_frontier(
+            cut_frontier(
                 frontier,
                 next,
+                self.cull_start(views),
                 count * ITEMS_PER_TASK,
                 // A subtree inside every plane is not cut further: cutting
                 // it too (it is walked level by level and reports nothing
                 // above its leaves) measured worse on the 16-core machine,
                 // four views 2.30 → 2.11 × at 8 threads and 2.15 → 1.53 × at
-                // 16 (docs/performance.md, "On several threads").
+                // 16 (docs/performance.md, "Sixteen cores").
                 |(node, mask)| self.node(node).is_leaf() || fully_inside(mask),
                 |item, pushed| {
                     ws.stats.nodes_visited += 1;
                     self.push_visible_children::<false>(views, item, true, pushed);
                 },
-            );
-            &frontier[..]
+            )
         };
         let frontier = run_prepared(tasks, prepare, |&item, task| {
             let keys = &mut task.keys;
@@ -313,15 +311,13 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
         }
         let [frontier, next] = &mut pws.join_frontier;
         let prepare = move |first: &mut TaskScratch<K>| {
-            // Moved into the closure's body (so that it runs once), the
-            // borrow the items come from can outlive the call.
+            // As in `par_cull_pass`: moved in, the borrow outlives the call.
             let frontier = { frontier };
-            frontier.clear();
-            frontier.push(start);
             let ws = &mut first.ws;
-            expand_frontier(
+            cut_frontier(
                 frontier,
                 next,
+                [start],
                 count * ITEMS_PER_TASK,
                 may_report,
                 |pair, pushed| {
@@ -329,8 +325,7 @@ impl<K: Copy + Ord + Send + Sync, const W: usize> RTree<K, W> {
                     let _ = step(pair, ws, &mut |_, _| reports_nothing(()));
                     pushed.extend_from_slice(&ws.join_stack);
                 },
-            );
-            &frontier[..]
+            )
         };
         let frontier = run_prepared(tasks, prepare, |&item, task| {
             task.ws.join_stack.clear();

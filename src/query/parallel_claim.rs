@@ -208,6 +208,23 @@ pub(super) fn segment(ends: &[usize], rank: usize, lists: usize, list: usize) ->
     start..ends[rank * lists + list]
 }
 
+/// The frontier a split traversal shares out: the items of `start`,
+/// expanded by [`expand_frontier`], in the reused buffers `frontier` and
+/// `next`.
+pub(super) fn cut_frontier<'a, T: Copy>(
+    frontier: &'a mut Vec<T>,
+    next: &mut Vec<T>,
+    start: impl IntoIterator<Item = T>,
+    target: usize,
+    may_report: impl Fn(T) -> bool,
+    step: impl FnMut(T, &mut Vec<T>),
+) -> &'a [T] {
+    frontier.clear();
+    frontier.extend(start);
+    expand_frontier(frontier, next, target, may_report, step);
+    frontier
+}
+
 /// Replaces the pending items of a depth-first traversal by the items they
 /// push, one level at a time and the last level only in part, until there
 /// are at least `target` or the next step could report an answer. With
