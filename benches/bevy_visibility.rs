@@ -14,7 +14,8 @@
 //! (add `multi_threaded` for Bevy's parallel executor; `-- --quick` for a
 //! short run; words after `--` pick cases by name; `--no-proof` sends every
 //! candidate to Bevy's tests; `--world-box` also prints what the tree's
-//! candidates alone would list, and the time of that cull).
+//! candidates alone would list, and the time of that cull;
+//! `BEVY_RTREE_THREADS=n` gives Bevy's compute pool n threads).
 
 #[path = "common/bevy_town.rs"]
 mod bevy_town;
@@ -288,7 +289,22 @@ fn report(name: &str, pairs: impl Iterator<Item = (f64, f64)>, visible: usize) {
     );
 }
 
+/// Bevy's compute pool of `BEVY_RTREE_THREADS` threads if set (so that a
+/// run means the same on any machine), else Bevy's default, one per core.
+fn set_pool_threads() {
+    let wanted = std::env::var("BEVY_RTREE_THREADS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok());
+    if let Some(n) = wanted {
+        let pool = bevy_tasks::ComputeTaskPool::get_or_init(|| {
+            bevy_tasks::TaskPoolBuilder::new().num_threads(n).build()
+        });
+        println!("Bevy's compute pool: {} threads", pool.thread_num());
+    }
+}
+
 fn main() {
+    set_pool_threads();
     let quick = std::env::args().any(|a| a == "--quick");
     let (rounds, frames) = if quick { (3, 5) } else { (9, 15) };
     #[cfg_attr(not(feature = "bevy_light"), allow(unused_mut))]

@@ -19,6 +19,7 @@ use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
 use super::rows::{RowScratch, decide_proven_by_rows};
+use super::seen::Seen;
 use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
 use super::{layers, radix};
@@ -65,34 +66,6 @@ pub(super) struct Sight {
     pub(super) no_culling: bool,
 }
 
-/// The entities a view saw, per visibility class.
-#[derive(Default)]
-pub(super) struct Seen(Vec<(TypeId, Vec<Entity>)>);
-
-impl Seen {
-    pub(super) fn push(&mut self, entity: Entity, class: TypeId) {
-        match self.0.iter_mut().find(|(c, _)| *c == class) {
-            Some((_, list)) => list.push(entity),
-            None => self.0.push((class, vec![entity])),
-        }
-    }
-
-    fn clear(&mut self) {
-        self.0.iter_mut().for_each(|(_, list)| list.clear());
-    }
-
-    /// Moves what `other` saw into this list (emptying `other`'s lists but
-    /// keeping their allocations).
-    pub(super) fn take_from(&mut self, other: &mut Seen) {
-        for (class, list) in &mut other.0 {
-            match self.0.iter_mut().find(|(c, _)| c == class) {
-                Some((_, mine)) => mine.append(list),
-                None => self.0.push((*class, std::mem::take(list))),
-            }
-        }
-    }
-}
-
 /// One active camera as Bevy's culling sees it, and what it saw.
 pub(super) struct View {
     pub(super) sight: Sight,
@@ -124,6 +97,8 @@ pub(super) struct Scratch {
     rows: RowScratch,
     /// Working space of the candidates' sort.
     sort_spare: Vec<(Entity, bool)>,
+    /// Working space of the visible lists' sort.
+    list_spare: Vec<Entity>,
     /// Every visibility class any view has listed an entity of, so far:
     /// Bevy's per-thread queues keep a key for each, and each active camera
     /// gets a list for each, empty or not (extraction sees only the
@@ -255,7 +230,7 @@ pub(super) fn check_visibility_from_index(
     // every class seen so far, by it, by the cameras before it this frame,
     // or in any earlier frame.
     for view in &mut views {
-        for (class, list) in &view.visible.0 {
+        for (class, list) in view.visible.lists() {
             if !list.is_empty() && !classes.contains(class) {
                 classes.push(*class);
             }
@@ -264,11 +239,8 @@ pub(super) fn check_visibility_from_index(
             continue;
         };
         visible.clear_all();
-        for (class, list) in &mut view.visible.0 {
-            // Sorted, as Bevy's diffing of visible lists needs. A stable
-            // sort, because it merges runs already in order: the walk in
-            // storage order gives one per thread's batch.
-            list.sort();
+        view.visible.sort(&mut scratch.list_spare);
+        for (class, list) in view.visible.lists_mut() {
             std::mem::swap(visible.get_mut(*class), list);
         }
         for class in classes.iter() {

@@ -16,7 +16,8 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::query::ContiguousQueryData;
 use bevy_transform::prelude::GlobalTransform;
 
-use super::cameras::{Culled, Seen, Sight, may_be_seen, passes_frustum};
+use super::cameras::{Culled, Sight, may_be_seen, passes_frustum};
+use super::seen::Seen;
 use crate::tree::prefetch::prefetch_lines;
 
 /// Whether the passes split over several threads may read Bevy's tables

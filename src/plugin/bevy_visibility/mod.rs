@@ -21,6 +21,7 @@ mod orders;
 mod proof_tests;
 mod radix;
 mod rows;
+mod seen;
 mod storage_order;
 mod sync;
 

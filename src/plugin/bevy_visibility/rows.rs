@@ -18,8 +18,9 @@ use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::storage::TableId;
 
-use super::cameras::{Culled, Seen, Sight, decide};
+use super::cameras::{Culled, Sight, decide};
 use super::columns::CulledColumns;
+use super::seen::Seen;
 
 /// How many candidates ahead of the one decided its rows are asked for.
 const LOOK_AHEAD: usize = 8;

@@ -10,13 +10,16 @@
 //! (an app that registers a disabling component stored in a sparse set),
 //! the walk goes through Bevy's own iteration, row by row.
 
+use std::ops::DerefMut;
+
 use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
 use bevy_ecs::prelude::*;
 use bevy_ecs::query::{ContiguousQueryData, QueryData};
 use bevy_utils::Parallel;
 
-use super::cameras::{Culled, Seen, Sight, View, decide};
+use super::cameras::{Culled, Sight, View, decide};
 use super::columns::{CulledColumns, TABLES_SPLIT_ACROSS_THREADS};
+use super::seen::Seen;
 
 /// One table's (or batch's) columns of [`Culled`].
 type Columns<'w, 's> = <Culled<'static> as ContiguousQueryData>::Contiguous<'w, 's>;
@@ -28,6 +31,22 @@ type CulledItem<'w, 's> = <Culled<'static> as QueryData>::Item<'w, 's>;
 const CANDIDATE: u16 = 0b01;
 /// An entity's mark for a view: the tree proved it inside every plane.
 const PROVEN: u16 = 0b10;
+
+/// One batch's hold on its thread's lists: when the batch ends, each list
+/// notes the part the batch wrote, a run in storage order (see `seen.rs`).
+struct BatchLists<L: DerefMut<Target = Vec<Seen>>> {
+    lists: L,
+    /// Each view's lengths of its lists where the batch started.
+    lengths: Vec<Vec<u32>>,
+}
+
+impl<L: DerefMut<Target = Vec<Seen>>> Drop for BatchLists<L> {
+    fn drop(&mut self) {
+        for (seen, lengths) in self.lists.iter_mut().zip(&self.lengths) {
+            seen.end_batch(lengths);
+        }
+    }
+}
 
 /// The views of a pass marked in `bits` (two per view), each with whether
 /// it proved the entity inside.
@@ -114,10 +133,12 @@ pub(super) fn decide_in_storage_order(
         }
     };
     if parallel {
+        // Bevy calls this once per batch.
         let lists = || {
             let mut lists = seen.borrow_local_mut();
             lists.resize_with(sights.len(), Seen::default);
-            lists
+            let lengths = lists.iter().map(Seen::lengths).collect();
+            BatchLists { lists, lengths }
         };
         let by_table = if TABLES_SPLIT_ACROSS_THREADS {
             culled.contiguous_par_iter_mut().ok()
@@ -125,10 +146,12 @@ pub(super) fn decide_in_storage_order(
             None
         };
         match by_table {
-            Some(batches) => batches.for_each_init(lists, |lists, columns| walk(lists, columns)),
+            Some(batches) => {
+                batches.for_each_init(lists, |batch, columns| walk(&mut batch.lists, columns))
+            }
             None => culled
                 .par_iter_mut()
-                .for_each_init(lists, |lists, item| walk_items(lists, item)),
+                .for_each_init(lists, |batch, item| walk_items(&mut batch.lists, item)),
         }
         for local in seen.iter_mut() {
             for (mine, list) in visible.iter_mut().zip(local.iter_mut()) {
