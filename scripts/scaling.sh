@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The scaling measurements: the parallel queries' paired speed-ups and the
-# plugin's `town` frame on 1, 2, 4, 8 and 16 threads, each run confined to
-# that many cores with `taskset` and given a task pool of exactly that
-# many threads.
+# The scaling measurements: the parallel queries' paired speed-ups, the
+# plugin's `town` frame and Bevy's visibility served by the index against
+# Bevy's own (multi-threaded executor) on 1, 2, 4, 8 and 16 threads, each
+# run confined to that many cores with `taskset` and given a task pool of
+# exactly that many threads.
 #
 #   scripts/scaling.sh build        release binaries into scaling-bin/
 #                                   (git-ignored; needs the Rust toolchain)
@@ -21,6 +22,11 @@ build)
     cp "$bench" scaling-bin/parallel
     cargo build --release --example town --features parallel,multi_threaded
     cp target/release/examples/town scaling-bin/town
+    bench=$(cargo bench --features bevy_light,multi_threaded --bench bevy_visibility --no-run 2>&1 |
+        sed -n 's/.*Executable .*(\(.*\)).*/\1/p' | tail -1)
+    cp "$bench" scaling-bin/bevy_visibility
+    # Smaller to carry to another machine (the Bevy bench is ~40 MB).
+    strip scaling-bin/* 2>/dev/null || true
     ls -l scaling-bin
     ;;
 run)
@@ -54,6 +60,13 @@ run)
         taskset -c "0-$last" scaling-bin/town --frames 300 --threads "$n" 2>&1 |
             grep -E 'task pool|summary' >>"$report" || true
         echo >>"$report"
+        if [ -x scaling-bin/bevy_visibility ]; then
+            echo "Bevy's visibility, multi-threaded executor (Bevy's time ÷ ours):" >>"$report"
+            echo >>"$report"
+            BEVY_RTREE_THREADS=$n taskset -c "0-$last" scaling-bin/bevy_visibility 2>&1 |
+                grep -E '^\||compute pool' >>"$report" || true
+            echo >>"$report"
+        fi
         rm -f "$out/paired_$n.md" "$out/parallel_$n.log"
     done
     cat "$report"
