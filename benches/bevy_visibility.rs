@@ -290,7 +290,9 @@ fn report(name: &str, pairs: impl Iterator<Item = (f64, f64)>, visible: usize) {
 }
 
 /// Bevy's compute pool of `BEVY_RTREE_THREADS` threads if set (so that a
-/// run means the same on any machine), else Bevy's default, one per core.
+/// run means the same on any machine); else whichever of Bevy's users
+/// makes it first sizes it (the multi-threaded executor: one thread per
+/// core; the light cases' `TaskPoolPlugin`: its share of the cores).
 fn set_pool_threads() {
     let wanted = std::env::var("BEVY_RTREE_THREADS")
         .ok()

@@ -240,7 +240,7 @@ pub(super) fn check_visibility_from_index(
         };
         visible.clear_all();
         view.visible.sort(&mut scratch.list_spare);
-        for (class, list) in view.visible.lists_mut() {
+        for (class, list) in view.visible.lists_to_hand_over() {
             std::mem::swap(visible.get_mut(*class), list);
         }
         for class in classes.iter() {

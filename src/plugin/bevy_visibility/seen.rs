@@ -13,12 +13,12 @@
 //! with 2 threads (`BEVY_RTREE_THREADS` in `benches/bevy_visibility.rs`).
 //! So each batch notes the part of the lists it wrote, and the parts are
 //! put in order of their least entity, each the right way round, before
-//! the sort: batches are disjoint ranges of rows, and where rows follow
-//! `Entity` order the sort then finds the list sorted. Where they do not,
-//! the sort does the rest: the lists are sorted whatever the parts. With
-//! the parts, the town's lists (docs/performance.md, "Sixteen cores")
-//! took 0.05 ms instead of 0.41 for one camera with 16 threads, and
-//! 0.16–0.17 instead of 0.61–0.73 ms for four.
+//! the sort. Where a batch's rows are one run in `Entity` order (a batch
+//! within one table whose entities were spawned together, the common
+//! case) the sort then finds the list sorted; where they are not (a batch
+//! over several small tables, entities respawned in between) the sort does
+//! the rest. The lists are sorted whatever the parts. The measurements:
+//! docs/performance.md, "Sixteen cores".
 
 use std::any::TypeId;
 
@@ -39,6 +39,8 @@ pub(super) struct Seen {
     lists: Vec<(TypeId, Vec<Entity>)>,
     /// The parts of the lists each batch of a parallel pass wrote.
     parts: Vec<Part>,
+    /// The lists' lengths where the batch under way started.
+    batch_start: Vec<u32>,
 }
 
 impl Seen {
@@ -59,24 +61,25 @@ impl Seen {
         &self.lists
     }
 
-    /// [`Self::lists`], to take the lists away (their parts are forgotten).
-    pub(super) fn lists_mut(&mut self) -> &mut [(TypeId, Vec<Entity>)] {
+    /// [`Self::lists`], to hand the lists over (swapped out): their parts
+    /// are forgotten.
+    pub(super) fn lists_to_hand_over(&mut self) -> &mut [(TypeId, Vec<Entity>)] {
         self.parts.clear();
         &mut self.lists
     }
 
-    /// The length of each class's list, where a batch starts writing.
-    pub(super) fn lengths(&self) -> Vec<u32> {
-        self.lists
-            .iter()
-            .map(|(_, list)| list.len() as u32)
-            .collect()
+    /// Notes where a batch of a parallel pass starts writing.
+    pub(super) fn start_batch(&mut self) {
+        self.batch_start.clear();
+        let lengths = self.lists.iter().map(|(_, list)| list.len() as u32);
+        self.batch_start.extend(lengths);
     }
 
-    /// Notes what a batch that started at `lengths` wrote.
-    pub(super) fn end_batch(&mut self, lengths: &[u32]) {
+    /// Notes the part each list got since [`Self::start_batch`] (a class
+    /// first seen in the batch from its start).
+    pub(super) fn end_batch(&mut self) {
         for (class, (_, list)) in self.lists.iter().enumerate() {
-            let start = lengths.get(class).copied().unwrap_or(0);
+            let start = self.batch_start.get(class).copied().unwrap_or(0);
             let end = list.len() as u32;
             if end > start {
                 self.parts.push(Part { class, start, end });
@@ -88,21 +91,19 @@ impl Seen {
     /// (emptying `other`'s lists but keeping their allocations).
     pub(super) fn take_from(&mut self, other: &mut Seen) {
         for (theirs, (class, list)) in other.lists.iter_mut().enumerate() {
-            let mine = match self.lists.iter().position(|(c, _)| c == class) {
-                Some(mine) => mine,
-                None => {
-                    self.lists.push((*class, Vec::new()));
-                    self.lists.len() - 1
-                }
-            };
-            let offset = self.lists[mine].1.len() as u32;
+            let mine = self.lists.iter().position(|(c, _)| c == class);
+            let at = mine.unwrap_or(self.lists.len());
+            let offset = mine.map_or(0, |mine| self.lists[mine].1.len() as u32);
             let parts = other.parts.iter().filter(|p| p.class == theirs);
             self.parts.extend(parts.map(|p| Part {
-                class: mine,
+                class: at,
                 start: p.start + offset,
                 end: p.end + offset,
             }));
-            self.lists[mine].1.append(list);
+            match mine {
+                Some(mine) => self.lists[mine].1.append(list),
+                None => self.lists.push((*class, std::mem::take(list))),
+            }
         }
         other.parts.clear();
     }
@@ -110,26 +111,36 @@ impl Seen {
     /// Sorts every class's list into `Entity` order, as Bevy's diffing of
     /// visible lists needs (see the module docs). `spare` is working space.
     pub(super) fn sort(&mut self, spare: &mut Vec<Entity>) {
-        let Seen { lists, parts } = self;
+        self.in_part_order(spare);
+        for (_, list) in &mut self.lists {
+            if !list.is_sorted() {
+                list.sort();
+            }
+        }
+    }
+
+    /// Puts each list whose parts cover it in the order of its parts'
+    /// least entities, each part the right way round, and forgets the
+    /// parts.
+    fn in_part_order(&mut self, spare: &mut Vec<Entity>) {
+        let Seen { lists, parts, .. } = self;
         parts.sort_unstable_by_key(|p| (p.class, least(&lists[p.class].1, p)));
         for (class, (_, list)) in lists.iter_mut().enumerate() {
             let mine = parts.iter().filter(|p| p.class == class);
             let covered: u32 = mine.clone().map(|p| p.end - p.start).sum();
-            if covered as usize == list.len() && mine.clone().count() > 1 {
-                spare.clear();
-                for part in mine {
-                    let piece = &list[part.start as usize..part.end as usize];
-                    if piece.first() > piece.last() {
-                        spare.extend(piece.iter().rev());
-                    } else {
-                        spare.extend_from_slice(piece);
-                    }
+            if covered as usize != list.len() || mine.clone().count() < 2 {
+                continue;
+            }
+            spare.clear();
+            for part in mine {
+                let piece = &list[part.start as usize..part.end as usize];
+                if piece.first() > piece.last() {
+                    spare.extend(piece.iter().rev());
+                } else {
+                    spare.extend_from_slice(piece);
                 }
-                std::mem::swap(list, spare);
             }
-            if !list.is_sorted() {
-                list.sort();
-            }
+            std::mem::swap(list, spare);
         }
         parts.clear();
     }
@@ -184,7 +195,7 @@ mod tests {
             let mut locals: Vec<Seen> = (0..threads).map(|_| Seen::default()).collect();
             for (b, rows) in rows.chunks(batch).enumerate() {
                 let local = &mut locals[b % threads];
-                let lengths = local.lengths();
+                local.start_batch();
                 for &row in rows {
                     match rng.below(4) {
                         0 => {}
@@ -192,7 +203,7 @@ mod tests {
                         _ => local.push(row, TypeId::of::<Mesh>()),
                     }
                 }
-                local.end_batch(&lengths);
+                local.end_batch();
             }
             let mut seen = Seen::default();
             for local in &mut locals {
@@ -214,25 +225,20 @@ mod tests {
         let mut locals = [Seen::default(), Seen::default(), Seen::default()];
         for (b, rows) in (0..3_000).collect::<Vec<u32>>().chunks(100).enumerate() {
             let local = &mut locals[b % 3];
-            let lengths = local.lengths();
+            local.start_batch();
             rows.iter()
                 .for_each(|&i| local.push(entity(i, 1), TypeId::of::<Mesh>()));
-            local.end_batch(&lengths);
+            local.end_batch();
         }
         let mut seen = Seen::default();
         for local in &mut locals {
             seen.take_from(local);
         }
-        let Seen { lists, parts } = &mut seen;
-        parts.sort_unstable_by_key(|p| (p.class, least(&lists[p.class].1, p)));
-        let list = &lists[0].1;
-        let mut joined: Vec<Entity> = Vec::new();
-        for part in parts.iter() {
-            let piece = &list[part.start as usize..part.end as usize];
-            assert!(piece.first() > piece.last(), "storage order is backwards");
-            joined.extend(piece.iter().rev());
-        }
-        assert_eq!(parts.len(), 30);
-        assert!(joined.is_sorted() && joined.len() == 3_000);
+        assert_eq!(seen.parts.len(), 30);
+        let list = &seen.lists()[0].1;
+        assert!(!list.is_sorted() && list.len() == 3_000);
+        seen.in_part_order(&mut Vec::new());
+        let list = &seen.lists()[0].1;
+        assert!(list.is_sorted() && list.len() == 3_000);
     }
 }

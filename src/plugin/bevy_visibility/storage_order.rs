@@ -36,15 +36,18 @@ const PROVEN: u16 = 0b10;
 /// notes the part the batch wrote, a run in storage order (see `seen.rs`).
 struct BatchLists<L: DerefMut<Target = Vec<Seen>>> {
     lists: L,
-    /// Each view's lengths of its lists where the batch started.
-    lengths: Vec<Vec<u32>>,
+}
+
+impl<L: DerefMut<Target = Vec<Seen>>> BatchLists<L> {
+    fn start(mut lists: L) -> Self {
+        lists.iter_mut().for_each(Seen::start_batch);
+        BatchLists { lists }
+    }
 }
 
 impl<L: DerefMut<Target = Vec<Seen>>> Drop for BatchLists<L> {
     fn drop(&mut self) {
-        for (seen, lengths) in self.lists.iter_mut().zip(&self.lengths) {
-            seen.end_batch(lengths);
-        }
+        self.lists.iter_mut().for_each(Seen::end_batch);
     }
 }
 
@@ -137,8 +140,7 @@ pub(super) fn decide_in_storage_order(
         let lists = || {
             let mut lists = seen.borrow_local_mut();
             lists.resize_with(sights.len(), Seen::default);
-            let lengths = lists.iter().map(Seen::lengths).collect();
-            BatchLists { lists, lengths }
+            BatchLists::start(lists)
         };
         let by_table = if TABLES_SPLIT_ACROSS_THREADS {
             culled.contiguous_par_iter_mut().ok()
