@@ -105,3 +105,41 @@ fn cameras_that_see_a_small_part_see_what_bevy_sees() {
     // eighth of the entities, which sends them to the look-up path.
     assert!(seen > 200, "{seen} seen in 30 frames");
 }
+
+/// Candidates few against all entities (the look-up path) but many for
+/// one camera: on the three-thread pool (where bevy_tasks has threads) the
+/// look-ups are split into shares over the threads, the rows they saw
+/// marked visible afterwards; the frames must reach that path.
+#[test]
+fn look_ups_split_over_the_pool_see_what_bevy_sees() {
+    let mut twins = Twins::new(12);
+    twins.spread = 700.0;
+    for _ in 0..10_000 {
+        twins.spawn_entity();
+    }
+    twins.spawn_camera(0);
+    twins.spawn_camera(1);
+    let mut split_frames = 0;
+    for frame in 0..30 {
+        twins.update();
+        twins.check(frame);
+        let world = twins.ours.world_mut();
+        let work = world.resource::<SpatialDiagnostics>().bevy_visibility;
+        let culled = world
+            .query_filtered::<(), (
+                With<ViewVisibility>,
+                With<GlobalTransform>,
+                Without<NoCpuCulling>,
+            )>()
+            .iter(world)
+            .count() as u64;
+        if work.proven >= 512 && work.candidates * 8 <= culled {
+            split_frames += 1;
+        }
+        twins.mutate();
+    }
+    assert!(
+        split_frames > 20,
+        "{split_frames} frames on the split look-ups"
+    );
+}

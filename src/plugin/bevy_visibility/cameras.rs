@@ -209,6 +209,7 @@ pub(super) fn check_visibility_from_index(
                 &candidates,
                 &mut scratch.rows,
                 ranges,
+                parallel,
             );
             for &(entity, inside) in &candidates {
                 if !inside && let Ok(mut item) = culled.get_mut(entity) {

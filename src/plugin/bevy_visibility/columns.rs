@@ -132,7 +132,7 @@ impl<'w> CulledColumns<'w> {
     /// Bevy's `set_visible` on `row`: the value changed as Bevy changes it,
     /// and the row's change tick (and caller, where Bevy tracks it) written
     /// exactly when Bevy's would be.
-    fn set_visible(&mut self, row: usize) {
+    pub(super) fn set_visible(&mut self, row: usize) {
         let ticks = &mut self.ticks;
         let (last_run, this_run) = (ticks.last_run(), ticks.this_run());
         let mut value = self.view[row];
