@@ -234,6 +234,18 @@ fn an_inspector_clones_and_creates_the_components() {
             "{name}"
         );
     }
+    #[cfg(feature = "bevy_camera")]
+    {
+        let default = registry
+            .get_type_data::<ReflectDefault>(TypeId::of::<FollowBevyFrustum>())
+            .expect("FollowBevyFrustum has a reflected Default");
+        assert_eq!(
+            default
+                .default()
+                .reflect_partial_eq(&FollowBevyFrustum::default()),
+            Some(true)
+        );
+    }
     for (name, id) in [
         ("VisibleEntityList", TypeId::of::<VisibleEntityList>()),
         ("RayCasterHits", TypeId::of::<RayCasterHits>()),

@@ -115,7 +115,10 @@ impl<L: Component> FollowBevyFrustum<L> {
 }
 
 pub(crate) fn build(app: &mut bevy_app::App, schedule: InternedScheduleLabel) {
-    app.register_type::<FollowBevyFrustum>();
+    // The main layer's `Default` (the only one: see its impl) for an
+    // inspector's "add component"; the derive cannot name it for every layer.
+    app.register_type::<FollowBevyFrustum>()
+        .register_type_data::<FollowBevyFrustum, bevy_reflect::std_traits::ReflectDefault>();
     app.configure_sets(
         schedule,
         SpatialIndexSystems::Bounds.after(VisibilitySystems::UpdateFrusta),
