@@ -240,7 +240,13 @@ fn decide_split(
         ComputeTaskPool::get().scope(|scope| {
             for (part, share) in candidates.chunks(share_len).zip(all_shares.iter_mut()) {
                 scope.spawn(async move {
-                    decide_share(read, slots_read, entities, sight, part, ranges, share);
+                    // Worked on as the task's own local: the shares lie
+                    // side by side, and their lists' lengths written
+                    // candidate by candidate from several cores could
+                    // share cache lines.
+                    let mut mine = std::mem::take(share);
+                    decide_share(read, slots_read, entities, sight, part, ranges, &mut mine);
+                    *share = mine;
                 });
             }
         });
