@@ -16,6 +16,10 @@ use bevy_rtree::scene::SceneRng;
 use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, Ray, RayMode};
 use glam::{Quat, Vec3};
 
+/// The most live entities a soak spawns up to: above it, a frame's
+/// spawns are skipped (the short soak stays below it).
+const MAX_LIVE: usize = 600;
+
 #[derive(Component)]
 struct Enemy;
 
@@ -172,8 +176,14 @@ impl Driver {
 
     /// One frame of random changes, the update, and the checks.
     fn step(&mut self) {
-        for _ in 0..self.rng.below(6) {
-            self.spawn();
+        // Spawns outnumber despawns, so a long soak caps the population
+        // (the oracle's pairs grow with its square); the draw is made
+        // either way, so that a short soak's scene does not change.
+        let spawns = self.rng.below(6);
+        if self.live.len() < MAX_LIVE {
+            for _ in 0..spawns {
+                self.spawn();
+            }
         }
         for _ in 0..self.rng.below(8) {
             let Some(e) = self.pick_live() else { break };
