@@ -88,7 +88,7 @@ pub(super) struct Scratch {
     views: Vec<View>,
     /// Per entity index, for a pass over all entities: two bits per view
     /// of the pass (candidate, proven inside).
-    marks: Vec<u16>,
+    marks: Vec<std::sync::atomic::AtomicU16>,
     /// The entities outside the tree, tested by every view.
     one_by_one: Vec<Entity>,
     /// Per thread of the pass in storage order, what each view saw.

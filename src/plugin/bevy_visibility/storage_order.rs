@@ -11,6 +11,8 @@
 //! the walk goes through Bevy's own iteration, row by row.
 
 use std::ops::DerefMut;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::atomic::{AtomicU16, AtomicUsize};
 
 use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
 use bevy_ecs::prelude::*;
@@ -69,7 +71,8 @@ fn views_marked(mut bits: u16) -> impl Iterator<Item = (usize, bool)> {
 /// candidate (every view that culls nothing, and every view for the
 /// entities outside the tree). `marks` is working space, per entity index,
 /// two bits per view of the pass (candidate, proven inside), all clear
-/// between calls.
+/// between calls (the walk clears those it reads, the rest are cleared
+/// after it).
 ///
 /// On a task pool of several threads the walk is split as Bevy splits its
 /// own; each thread gathers what it saw in its own lists, merged afterwards
@@ -80,16 +83,20 @@ pub(super) fn decide_in_storage_order(
     one_by_one: &[Entity],
     culled: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
     ranges: Option<&VisibleEntityRanges>,
-    marks: &mut Vec<u16>,
+    marks: &mut Vec<AtomicU16>,
     seen: &mut Parallel<Vec<Seen>>,
     parallel: bool,
 ) {
+    // How many entities got a mark.
+    let mut marked = 0usize;
     let mut mark = |entity: Entity, bits: u16| {
         let at = entity.index_u32() as usize;
         if marks.len() <= at {
-            marks.resize(at + 1, 0);
+            marks.resize_with(at + 1, AtomicU16::default);
         }
-        marks[at] |= bits;
+        let mark = marks[at].get_mut();
+        marked += usize::from(*mark == 0);
+        *mark |= bits;
     };
     let mut all = 0u16;
     for (v, view) in views.iter().enumerate() {
@@ -112,20 +119,33 @@ pub(super) fn decide_in_storage_order(
         .map(|v| std::mem::take(&mut v.visible))
         .collect();
     let sights: Vec<&Sight> = views.iter().map(|v| &v.sight).collect();
-    let marks_read: &[u16] = marks;
+    let marks_read: &[AtomicU16] = marks;
     let marks_of = |entity: Entity| {
         all | marks_read
             .get(entity.index_u32() as usize)
-            .copied()
-            .unwrap_or(0)
+            .map_or(0, |mark| mark.load(Relaxed))
     };
+    // The walk by table clears each mark it reads, on the thread that
+    // reads it (each entity is one row, so no two threads write one mark;
+    // relaxed loads and stores are plain moves), and counts them.
+    let cleared = AtomicUsize::new(0);
     let walk = |lists: &mut Vec<Seen>, columns: Columns<'_, '_>| {
         let mut columns = CulledColumns::new(columns);
+        let mut cleared_here = 0;
         for (row, &entity) in columns.ids.iter().enumerate() {
-            for (v, proven) in views_marked(marks_of(entity)) {
+            let mark = marks_read.get(entity.index_u32() as usize);
+            let bits = mark.map_or(0, |mark| mark.load(Relaxed));
+            if bits != 0
+                && let Some(mark) = mark
+            {
+                mark.store(0, Relaxed);
+                cleared_here += 1;
+            }
+            for (v, proven) in views_marked(all | bits) {
                 columns.decide(row, entity, sights[v], &mut lists[v], proven, ranges);
             }
         }
+        cleared.fetch_add(cleared_here, Relaxed);
     };
     // Where the query cannot be read by table (a disabling component the
     // app registered is stored in a sparse set, which makes every query
@@ -172,14 +192,17 @@ pub(super) fn decide_in_storage_order(
     for (view, list) in views.iter_mut().zip(visible) {
         view.visible = list;
     }
-    // Cleared mark by mark, not by walking the entities: a marked entity
-    // the walk did not meet must not carry its marks into the next pass.
-    for view in views.iter() {
-        for &(entity, _) in &view.candidates {
-            marks[entity.index_u32() as usize] = 0;
+    // Where the walk did not clear every mark (a marked entity it did not
+    // meet, or the walk row by row), cleared mark by mark: no mark may be
+    // carried into the next pass.
+    if cleared.into_inner() != marked {
+        for view in views.iter() {
+            for &(entity, _) in &view.candidates {
+                *marks[entity.index_u32() as usize].get_mut() = 0;
+            }
         }
-    }
-    for &entity in one_by_one {
-        marks[entity.index_u32() as usize] = 0;
+        for &entity in one_by_one {
+            *marks[entity.index_u32() as usize].get_mut() = 0;
+        }
     }
 }
