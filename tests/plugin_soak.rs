@@ -16,8 +16,9 @@ use bevy_rtree::scene::SceneRng;
 use bevy_rtree::{Aabb, CullMode, Frustum, JoinMode, Ray, RayMode};
 use glam::{Quat, Vec3};
 
-/// The most live entities a soak spawns up to: above it, a frame's
-/// spawns are skipped (the short soak stays below it).
+/// Where a soak stops spawning: a frame's spawns (at most five) are
+/// skipped once this many entities are live. The short soak stays below
+/// it, which it checks.
 const MAX_LIVE: usize = 600;
 
 #[derive(Component)]
@@ -40,6 +41,8 @@ struct Driver {
     casters: Vec<Entity>,
     open_pairs: Vec<(Entity, Entity)>,
     frames: usize,
+    /// The most entities live at the start of any frame.
+    most_live: usize,
     /// What the checks compared over the run, summed: entities seen by the
     /// cameras, casters' hits, and enemy-barrel pairs (a soak whose
     /// answers were all empty would check nothing).
@@ -72,6 +75,7 @@ impl Driver {
             casters: Vec::new(),
             open_pairs: Vec::new(),
             frames: 0,
+            most_live: 0,
             compared: [0; 3],
         }
     }
@@ -180,6 +184,7 @@ impl Driver {
         // (the oracle's pairs grow with its square); the draw is made
         // either way, so that a short soak's scene does not change.
         let spawns = self.rng.below(6);
+        self.most_live = self.most_live.max(self.live.len());
         if self.live.len() < MAX_LIVE {
             for _ in 0..spawns {
                 self.spawn();
@@ -487,7 +492,8 @@ fn check_index<L: Component>(
     assert_eq!(held, expected, "frame {frame}: {name} index contents");
 }
 
-fn soak(seed: u64, frames: usize, row_by_row: bool) {
+/// Runs a soak; returns the most entities live at the start of a frame.
+fn soak(seed: u64, frames: usize, row_by_row: bool) -> usize {
     let mut driver = Driver::new(seed, row_by_row);
     for _ in 0..40 {
         driver.spawn();
@@ -501,20 +507,24 @@ fn soak(seed: u64, frames: usize, row_by_row: bool) {
         visible > 0 && hits > 0 && pairs > 0,
         "answers compared: {visible} visible, {hits} hits, {pairs} pairs"
     );
+    driver.most_live
 }
 
 #[test]
 fn soak_short() {
+    let mut most_live = 0;
     for seed in 0..3 {
-        soak(seed, 150, false);
+        most_live = most_live.max(soak(seed, 150, false));
     }
-    soak(3, 150, true);
+    most_live = most_live.max(soak(3, 150, true));
+    assert!(most_live < MAX_LIVE, "the cap never bit: {most_live} live");
 }
 
 #[test]
 #[ignore = "thousands of frames; run with --release -- --ignored"]
 fn soak_long() {
     for seed in 100..104 {
-        soak(seed, 5_000, seed == 103);
+        let most_live = soak(seed, 5_000, seed == 103);
+        assert!(most_live >= MAX_LIVE, "a long session: {most_live} live");
     }
 }

@@ -18,7 +18,7 @@
 //! `Entity` order), looks them up and decides them on read-only columns,
 //! noting the rows it saw; the calling thread then marks those rows
 //! visible. The reads are nearly all cache misses, and several cores keep
-//! more of them in flight than one; the writes find their lines asked for.
+//! more of them in flight than one.
 
 use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
 use bevy_ecs::entity::Entities;
@@ -197,7 +197,7 @@ pub(super) fn decide_proven_by_rows(
 /// [`decide_proven_by_rows`] split into `shares` contiguous shares of the
 /// candidates, one task each, deciding on read-only columns; the rows they
 /// saw are then marked visible here, and their lists appended in share
-/// order (so that lists in `Entity` order stay in it).
+/// order (the lists are sorted before they are handed to Bevy).
 #[allow(clippy::too_many_arguments)]
 fn decide_split(
     query: &mut Query<Culled<'_>, Without<NoCpuCulling>>,
@@ -218,10 +218,13 @@ fn decide_split(
         all_shares.resize_with(shares, Share::default);
     }
     let share_len = candidates.len().div_ceil(shares);
+    // The read's tables, in the order the shares' rows name them.
+    let read_ids: Vec<TableId>;
     {
-        // Dense, as the caller checked: whether a query can be read by
-        // table depends on its terms alone, the same for both reads here.
+        // Dense, as the caller checked (whether a query can be read by
+        // table depends on its terms alone); one by one if not.
         let Ok(chunks) = query.contiguous_iter() else {
+            decide_proven_one_by_one(query, sight, seen, candidates, ranges);
             return;
         };
         let chunks = chunks.map(|columns| {
@@ -253,22 +256,32 @@ fn decide_split(
         for (id, _) in &tables {
             slots[id.as_u32() as usize] = NONE;
         }
+        read_ids = tables.iter().map(|(id, _)| *id).collect();
     }
     let Ok(chunks) = query.contiguous_iter_mut() else {
+        for share in all_shares.iter_mut() {
+            share.visible.clear();
+            share.seen.clear();
+        }
+        decide_proven_one_by_one(query, sight, seen, candidates, ranges);
         return;
     };
     let chunks = chunks.map(CulledColumns::new);
+    // `slots` now gives each table's place in this second list: a share's
+    // row names its table by its place in the first, translated by id.
     let mut tables = tables_of(chunks, |c| c.ids, entities, slots);
-    for (id, _) in &tables {
-        slots[id.as_u32() as usize] = NONE;
-    }
     for share in all_shares.iter_mut().take(shares) {
         for at in share.visible.drain(..) {
-            if let Some((_, columns)) = tables.get_mut(at.table as usize) {
+            let id = read_ids[at.table as usize].as_u32() as usize;
+            let place = slots.get(id).copied().unwrap_or(NONE);
+            if let Some((_, columns)) = tables.get_mut(place as usize) {
                 columns.set_visible(at.row as usize);
             }
         }
         seen.take_from(&mut share.seen);
+    }
+    for (id, _) in &tables {
+        slots[id.as_u32() as usize] = NONE;
     }
 }
 
@@ -298,6 +311,9 @@ fn decide_share(
         {
             let row = ahead.row as usize;
             prefetch_lines(&columns.inherited[row]);
+            // Not read here: asked for so that the marking, on the
+            // calling thread, may find it in a cache the cores share (not
+            // measured apart from the rest of the split).
             prefetch_lines(&columns.view[row]);
             if let Some(class) = columns.class {
                 prefetch_lines(&class[row]);

@@ -125,7 +125,7 @@ pub(super) fn decide_in_storage_order(
             .get(entity.index_u32() as usize)
             .map_or(0, |mark| mark.load(Relaxed))
     };
-    // The walk by table clears each mark it reads, on the thread that
+    // The walk by table clears each mark it finds set, on the thread that
     // reads it (each entity is one row, so no two threads write one mark;
     // relaxed loads and stores are plain moves), and counts them.
     let cleared = AtomicUsize::new(0);
@@ -192,9 +192,11 @@ pub(super) fn decide_in_storage_order(
     for (view, list) in views.iter_mut().zip(visible) {
         view.visible = list;
     }
-    // Where the walk did not clear every mark (a marked entity it did not
-    // meet, or the walk row by row), cleared mark by mark: no mark may be
-    // carried into the next pass.
+    // Where the walk did not clear every mark (its count differs from the
+    // entities marked: a marked entity it did not meet, or the walk row by
+    // row), cleared mark by mark: no mark may be carried into the next
+    // pass. (All marks are clear on entry, and the walk meets an entity at
+    // most once, so equal counts mean every mark was cleared.)
     if cleared.into_inner() != marked {
         for view in views.iter() {
             for &(entity, _) in &view.candidates {
@@ -205,4 +207,8 @@ pub(super) fn decide_in_storage_order(
             *marks[entity.index_u32() as usize].get_mut() = 0;
         }
     }
+    debug_assert!(
+        marks.iter_mut().all(|mark| *mark.get_mut() == 0),
+        "no mark is carried into the next pass"
+    );
 }
