@@ -19,6 +19,8 @@
 
 #[path = "common/bevy_town.rs"]
 mod bevy_town;
+#[path = "common/threads.rs"]
+mod threads;
 
 use std::any::TypeId;
 
@@ -294,10 +296,7 @@ fn report(name: &str, pairs: impl Iterator<Item = (f64, f64)>, visible: usize) {
 /// makes it first sizes it (the multi-threaded executor: one thread per
 /// core; the light cases' `TaskPoolPlugin`: its share of the cores).
 fn set_pool_threads() {
-    let wanted = std::env::var("BEVY_RTREE_THREADS")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok());
-    if let Some(n) = wanted {
+    if let Some(n) = threads::threads_wanted() {
         let pool = bevy_tasks::ComputeTaskPool::get_or_init(|| {
             bevy_tasks::TaskPoolBuilder::new().num_threads(n).build()
         });

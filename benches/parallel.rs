@@ -302,13 +302,11 @@ fn bench_all(cr: &mut Criterion) {
 /// scaling run means the same on any machine: `scripts/scaling.sh`), else
 /// one per core.
 fn pool_threads() -> usize {
-    let wanted = std::env::var("BEVY_RTREE_THREADS")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok());
-    let pool = bevy_tasks::ComputeTaskPool::get_or_init(|| match wanted {
-        Some(n) => bevy_tasks::TaskPoolBuilder::new().num_threads(n).build(),
-        None => bevy_tasks::TaskPool::default(),
-    });
+    let pool =
+        bevy_tasks::ComputeTaskPool::get_or_init(|| match common::threads::threads_wanted() {
+            Some(n) => bevy_tasks::TaskPoolBuilder::new().num_threads(n).build(),
+            None => bevy_tasks::TaskPool::default(),
+        });
     pool.thread_num()
 }
 

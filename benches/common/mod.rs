@@ -5,6 +5,7 @@
 
 pub mod indexes;
 pub mod paired;
+pub mod threads;
 
 use std::hint::black_box;
 use std::time::Duration;

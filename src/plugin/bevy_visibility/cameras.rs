@@ -392,9 +392,5 @@ fn see(
     class: Option<&VisibilityClass>,
 ) {
     view_visibility.set_visible();
-    if let Some(class) = class {
-        for &id in class.iter() {
-            seen.push(entity, id);
-        }
-    }
+    seen.push_classes(entity, class);
 }

@@ -113,11 +113,7 @@ impl<'w> CulledColumns<'w> {
             }
         }
         self.set_visible(row);
-        if let Some(class) = self.class {
-            for &id in class[row].iter() {
-                seen.push(entity, id);
-            }
-        }
+        seen.push_classes(entity, self.class.map(|class| &class[row]));
     }
 
     /// Asks for the lines a proven decision on `row` reads.

@@ -20,7 +20,10 @@
 //! visible. The reads are nearly all cache misses, and several cores keep
 //! more of them in flight than one.
 
-use bevy_camera::visibility::{NoCpuCulling, VisibleEntityRanges};
+use bevy_camera::visibility::{
+    InheritedVisibility, NoCpuCulling, RenderLayers, ViewVisibility, VisibilityClass,
+    VisibleEntityRanges,
+};
 use bevy_ecs::entity::Entities;
 use bevy_ecs::prelude::*;
 use bevy_ecs::storage::TableId;
@@ -76,10 +79,10 @@ pub(super) struct RowScratch {
 /// a run of rows (read-only, so that several threads may read them).
 struct ReadColumns<'w> {
     ids: &'w [Entity],
-    inherited: &'w [bevy_camera::visibility::InheritedVisibility],
-    view: &'w [bevy_camera::visibility::ViewVisibility],
-    class: Option<&'w [bevy_camera::visibility::VisibilityClass]>,
-    layers: Option<&'w [bevy_camera::visibility::RenderLayers]>,
+    inherited: &'w [InheritedVisibility],
+    view: &'w [ViewVisibility],
+    class: Option<&'w [VisibilityClass]>,
+    layers: Option<&'w [RenderLayers]>,
     has_range: bool,
 }
 
@@ -163,7 +166,7 @@ pub(super) fn decide_proven_by_rows(
         1
     };
     let shares = threads.min(candidates.len() / CANDIDATES_PER_SHARE);
-    if shares > 1 && query.contiguous_iter().is_ok() {
+    if shares > 1 {
         decide_split(
             query, entities, sight, seen, candidates, scratch, ranges, shares,
         );
@@ -221,8 +224,8 @@ fn decide_split(
     // The read's tables, in the order the shares' rows name them.
     let read_ids: Vec<TableId>;
     {
-        // Dense, as the caller checked (whether a query can be read by
-        // table depends on its terms alone); one by one if not.
+        // Every query of an app that registers a disabling component
+        // stored in a sparse set is sparse: the candidates go one by one.
         let Ok(chunks) = query.contiguous_iter() else {
             decide_proven_one_by_one(query, sight, seen, candidates, ranges);
             return;
@@ -329,11 +332,7 @@ fn decide_share(
             continue;
         }
         visible.push(at);
-        if let Some(class) = columns.class {
-            for &id in class[row].iter() {
-                seen.push(entity, id);
-            }
-        }
+        seen.push_classes(entity, columns.class.map(|class| &class[row]));
     }
 }
 

@@ -22,6 +22,7 @@
 
 use std::any::TypeId;
 
+use bevy_camera::visibility::VisibilityClass;
 use bevy_ecs::entity::Entity;
 
 /// A part of one class's list that one batch of a parallel pass wrote.
@@ -44,7 +45,16 @@ pub(super) struct Seen {
 }
 
 impl Seen {
-    pub(super) fn push(&mut self, entity: Entity, class: TypeId) {
+    /// Lists `entity` once under each visibility class it names, as Bevy
+    /// lists a visible entity (twice under a class it names twice; under
+    /// none without a `VisibilityClass`).
+    pub(super) fn push_classes(&mut self, entity: Entity, classes: Option<&VisibilityClass>) {
+        for &class in classes.into_iter().flat_map(|c| c.iter()) {
+            self.push(entity, class);
+        }
+    }
+
+    fn push(&mut self, entity: Entity, class: TypeId) {
         match self.lists.iter_mut().find(|(c, _)| *c == class) {
             Some((_, list)) => list.push(entity),
             None => self.lists.push((class, vec![entity])),
