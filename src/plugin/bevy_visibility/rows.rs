@@ -73,6 +73,8 @@ pub(super) struct RowScratch {
     slots: Vec<u32>,
     /// The threads' shares, where the look-ups are split.
     shares: Vec<Share>,
+    /// The split look-ups' tables, by their place in the read-only pass.
+    read_tables: Vec<TableId>,
 }
 
 /// The columns of [`Culled`] a decision on a proven candidate reads, for
@@ -215,14 +217,13 @@ fn decide_split(
     let RowScratch {
         slots,
         shares: all_shares,
+        read_tables,
         ..
     } = scratch;
     if all_shares.len() < shares {
         all_shares.resize_with(shares, Share::default);
     }
     let share_len = candidates.len().div_ceil(shares);
-    // The read's tables, in the order the shares' rows name them.
-    let read_ids: Vec<TableId>;
     {
         // Every query of an app that registers a disabling component
         // stored in a sparse set is sparse: the candidates go one by one.
@@ -259,7 +260,9 @@ fn decide_split(
         for (id, _) in &tables {
             slots[id.as_u32() as usize] = NONE;
         }
-        read_ids = tables.iter().map(|(id, _)| *id).collect();
+        // The read's tables, in the order the shares' rows name them.
+        read_tables.clear();
+        read_tables.extend(tables.iter().map(|(id, _)| *id));
     }
     let Ok(chunks) = query.contiguous_iter_mut() else {
         for share in all_shares.iter_mut() {
@@ -275,7 +278,7 @@ fn decide_split(
     let mut tables = tables_of(chunks, |c| c.ids, entities, slots);
     for share in all_shares.iter_mut().take(shares) {
         for at in share.visible.drain(..) {
-            let id = read_ids[at.table as usize].as_u32() as usize;
+            let id = read_tables[at.table as usize].as_u32() as usize;
             let place = slots.get(id).copied().unwrap_or(NONE);
             if let Some((_, columns)) = tables.get_mut(place as usize) {
                 columns.set_visible(at.row as usize);

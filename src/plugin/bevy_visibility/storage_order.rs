@@ -133,14 +133,17 @@ pub(super) fn decide_in_storage_order(
         let mut columns = CulledColumns::new(columns);
         let mut cleared_here = 0;
         for (row, &entity) in columns.ids.iter().enumerate() {
-            let mark = marks_read.get(entity.index_u32() as usize);
-            let bits = mark.map_or(0, |mark| mark.load(Relaxed));
-            if bits != 0
-                && let Some(mark) = mark
-            {
-                mark.store(0, Relaxed);
-                cleared_here += 1;
-            }
+            let bits = match marks_read.get(entity.index_u32() as usize) {
+                Some(mark) => {
+                    let bits = mark.load(Relaxed);
+                    if bits != 0 {
+                        mark.store(0, Relaxed);
+                        cleared_here += 1;
+                    }
+                    bits
+                }
+                None => 0,
+            };
             for (v, proven) in views_marked(all | bits) {
                 columns.decide(row, entity, sights[v], &mut lists[v], proven, ranges);
             }
