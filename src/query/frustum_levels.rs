@@ -163,11 +163,12 @@ mod tests {
         }
     }
 
-    /// Whether `mode`'s scalar test accepts `aabb` in `view`.
-    fn accepts(view: &Frustum, mode: CullMode, aabb: &crate::Aabb) -> bool {
+    /// Whether `mode`'s scalar test accepts `aabb` in `view` (`sat`: the
+    /// view's separating axes, built once per view).
+    fn accepts(view: &Frustum, sat: &FrustumSat, mode: CullMode, aabb: &crate::Aabb) -> bool {
         match mode {
             CullMode::Conservative => frustum_conservative(view, aabb),
-            CullMode::Exact => frustum_exact(view, &FrustumSat::new(view), aabb),
+            CullMode::Exact => frustum_exact(view, sat, aabb),
         }
     }
 
@@ -212,7 +213,10 @@ mod tests {
             let want: Vec<Vec<(u32, crate::Aabb)>> = views
                 .iter()
                 .map(|view| {
-                    let seen = all.iter().filter(|(_, aabb)| accepts(view, mode, aabb));
+                    let sat = FrustumSat::new(view);
+                    let seen = all
+                        .iter()
+                        .filter(|(_, aabb)| accepts(view, &sat, mode, aabb));
                     seen.copied().collect()
                 })
                 .collect();
