@@ -43,15 +43,13 @@ fn answers_and_handles_hold_with_one_unit_a_frame_after_the_work() {
 fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
     let scene = TownScene::new(20_000, 3);
     let mut tree = RTree::new();
-    // Each live entry's box; the oracle is built from it once a frame
-    // (its updates search every entry, and 440 a frame of them over 20,000
-    // entries were most of this test's time).
-    let mut boxes: BTreeMap<u32, Aabb> = BTreeMap::new();
-    let mut handles: BTreeMap<u32, ProxyId> = BTreeMap::new();
+    // Each live entry's handle and box; the oracle is built from the boxes
+    // once a frame (its updates search every entry, and 440 a frame of them
+    // over 20,000 entries were most of this test's time).
+    let mut live: BTreeMap<u32, (ProxyId, Aabb)> = BTreeMap::new();
     let mut retired: Vec<ProxyId> = Vec::new();
     for (key, aabb) in scene.boxes().iter().enumerate() {
-        handles.insert(key as u32, tree.insert(key as u32, *aabb).unwrap());
-        boxes.insert(key as u32, *aabb);
+        live.insert(key as u32, (tree.insert(key as u32, *aabb).unwrap(), *aabb));
     }
     let mut rng = SceneRng::new(11);
     let mut next_key = scene.len() as u32;
@@ -60,10 +58,10 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
     let mut away: Option<(usize, std::thread::JoinHandle<RebuildWork<u32>>)> = None;
     let mut ws = QueryWorkspace::default();
     for frame in 0..150 {
-        let keys: Vec<u32> = handles.keys().copied().collect();
+        let keys: Vec<u32> = live.keys().copied().collect();
         for _ in 0..400 {
             let key = keys[rng.below(keys.len())];
-            let Some(&id) = handles.get(&key) else {
+            let Some(&(id, _)) = live.get(&key) else {
                 continue;
             };
             let (_, now) = tree.get(id).unwrap();
@@ -77,18 +75,16 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
                 }
             };
             tree.update(id, moved).unwrap();
-            boxes.insert(key, moved);
+            live.insert(key, (id, moved));
         }
         for _ in 0..40 {
             let key = keys[rng.below(keys.len())];
-            if let Some(id) = handles.remove(&key) {
+            if let Some((id, _)) = live.remove(&key) {
                 assert_eq!(tree.remove(id), Ok(key));
-                boxes.remove(&key);
                 retired.push(id);
             }
             let aabb = cube(rng.point_in_world(), rng.range(0.25, 3.0));
-            handles.insert(next_key, tree.insert(next_key, aabb).unwrap());
-            boxes.insert(next_key, aabb);
+            live.insert(next_key, (tree.insert(next_key, aabb).unwrap(), aabb));
             next_key += 1;
         }
         if !tree.rebuild_pending() {
@@ -124,14 +120,13 @@ fn churn_through_rebuilds(work_away: bool, units_per_frame: usize) {
 
         tree.validate().unwrap();
         let mut oracle = BruteForce::default();
-        for (&key, &aabb) in &boxes {
+        for (&key, &(_, aabb)) in &live {
             oracle.insert(key, aabb);
         }
         assert_eq!(tree.len(), oracle.len());
         for _ in 0..20 {
             let key = keys[rng.below(keys.len())];
-            if let Some(&id) = handles.get(&key) {
-                let want = boxes[&key];
+            if let Some(&(id, want)) = live.get(&key) {
                 assert_eq!(tree.get(id), Ok((key, want)), "frame {frame}: handle {key}");
             }
         }
