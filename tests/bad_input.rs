@@ -57,10 +57,23 @@ fn invalid_boxes_are_refused_by_every_mutation() {
         );
         let bulk = vec![(1000, common::aabb([0.0; 3], [1.0; 3])), (1001, bad)];
         assert_eq!(
-            tree.insert_bulk(bulk),
+            tree.insert_bulk(bulk.clone()),
             Err(SpatialError::InvalidBox),
             "{bad:?}"
         );
+        assert_eq!(
+            tree.insert_bulk_with_room(bulk.clone()),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
+        let mut empty = RTree::<u32>::new();
+        assert_eq!(
+            empty.insert_bulk_with_room(bulk),
+            Err(SpatialError::InvalidBox),
+            "{bad:?}"
+        );
+        assert!(empty.is_empty());
+        empty.validate().unwrap();
         tree.validate().unwrap();
         assert_eq!(snapshot(&tree), before);
     }

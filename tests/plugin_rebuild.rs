@@ -236,3 +236,18 @@ fn work_away_dropped_by_a_spawn_wave_is_let_go() {
     let query = random_box(&mut rng).grown(Vec3::splat(50.0));
     assert_eq!(index.tree().overlapping(&query), oracle.overlapping(&query));
 }
+
+/// The plugin loads the first entities it meets with room for two more in
+/// every leaf (`RTree::insert_bulk_with_room`), so that the first entities
+/// to move out of their leaves land in that room instead of splitting
+/// leaves packed full.
+#[test]
+fn the_first_load_leaves_room_in_every_leaf() {
+    let mut rng = SceneRng::new(11);
+    let (mut app, entities) = app_with_boxes(SpatialIndexPlugin::default(), 2_000, &mut rng);
+    app.update();
+    let index = app.world().resource::<SpatialIndex>();
+    index.validate().unwrap();
+    assert_eq!(index.len(), entities.len());
+    assert_eq!(index.tree().nodes_at_level(0), 2_000usize.div_ceil(14));
+}

@@ -181,7 +181,12 @@ impl Model {
                     .iter()
                     .enumerate()
                     .map(|(i, b)| (first + i as u32, *b));
-                let ids = self.tree.insert_bulk(keyed).unwrap();
+                // Leaves packed full, or with room, by the batch's length.
+                let ids = if boxes.len().is_multiple_of(2) {
+                    self.tree.insert_bulk(keyed).unwrap()
+                } else {
+                    self.tree.insert_bulk_with_room(keyed).unwrap()
+                };
                 for (i, (aabb, id)) in boxes.iter().zip(ids).enumerate() {
                     self.oracle.insert(first + i as u32, *aabb);
                     self.handles.insert(first + i as u32, id);

@@ -152,10 +152,14 @@ impl<const W: usize> Model<W> {
                 let first = self.next_key;
                 let keys: Vec<u32> = (first..first + boxes.len() as u32).collect();
                 self.next_key += boxes.len() as u32;
-                let ids = self
-                    .tree
-                    .insert_bulk(keys.iter().copied().zip(boxes.iter().copied()))
-                    .unwrap();
+                let entries = keys.iter().copied().zip(boxes.iter().copied());
+                // Leaves packed full, or with room, by the batch's length.
+                let ids = if boxes.len().is_multiple_of(2) {
+                    self.tree.insert_bulk(entries)
+                } else {
+                    self.tree.insert_bulk_with_room(entries)
+                };
+                let ids = ids.unwrap();
                 for ((key, aabb), id) in keys.into_iter().zip(boxes).zip(ids) {
                     self.oracle.insert(key, *aabb);
                     self.handles.insert(key, id);

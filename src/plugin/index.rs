@@ -400,10 +400,11 @@ pub(crate) fn apply_changes<L: Component>(
         }
     }
     if !fresh.is_empty() {
-        // Many at once in bulk; should the bulk load ever be refused (the
-        // boxes were checked), one by one, as the moves above.
+        // Many at once in bulk, with room in the leaves for the moves to
+        // come; should the bulk load ever be refused (the boxes were
+        // checked), one by one, as the moves above.
         let bulk = (fresh.len() > index.tree.len())
-            .then(|| index.tree.insert_bulk(fresh.iter().copied()).ok())
+            .then(|| index.tree.insert_bulk_with_room(fresh.iter().copied()).ok())
             .flatten();
         if let Some(ids) = bulk {
             for (&(entity, _), id) in fresh.iter().zip(ids) {
