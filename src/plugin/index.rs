@@ -312,7 +312,9 @@ pub(crate) struct SyncScratch {
 /// Moves are gathered and applied as one [`RTree::update_batch`](crate::RTree::update_batch).
 /// New entities are gathered and inserted together: when they outnumber the
 /// entities already indexed (the first frame of a scene) the tree is bulk
-/// loaded, which is several times faster and gives a better tree.
+/// loaded, which is several times faster and gives a better tree, with room
+/// in its leaves for the entities that will move
+/// ([`RTree::insert_bulk_with_room`](crate::RTree::insert_bulk_with_room)).
 pub(crate) fn apply_changes<L: Component>(
     index: &mut SpatialIndex<L>,
     changed: impl Iterator<Item = (Entity, Aabb, Option<ProxyId>)>,

@@ -14,7 +14,8 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     ///
     /// Much faster than inserting one by one and gives a better tree; existing
     /// handles stay valid. Into an empty tree (new, cleared or emptied by
-    /// removals), leaves are packed full; into
+    /// removals), leaves are packed full (for entries that will move,
+    /// [`RTree::insert_bulk_with_room`] leaves room); into
     /// one that holds entries, this is a rebuild, and leaves keep room for
     /// two more entries as [`RTree::rebuild`] leaves them, and a rebuild
     /// under way is dropped, as `rebuild` drops it. Parents keep
