@@ -77,7 +77,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// roomy.insert_bulk_with_room((0..1600).map(unit))?;
     /// assert_eq!(roomy.nodes_at_level(0), 1600usize.div_ceil(14));
     /// assert_eq!(full.nodes_at_level(0), 1600 / 16);
-    /// // An entry moved in among the others splits no leaf.
+    /// // An entry inserted among the others splits no leaf.
     /// let nodes = roomy.node_count();
     /// roomy.insert(1600, Aabb::new(Vec3::new(3.1, 0.0, 0.0), Vec3::new(3.9, 1.0, 1.0))?)?;
     /// assert_eq!(roomy.node_count(), nodes);
