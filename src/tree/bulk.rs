@@ -87,7 +87,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         &mut self,
         entries: impl IntoIterator<Item = (K, Aabb)>,
     ) -> Result<Vec<ProxyId>, SpatialError> {
-        self.insert_bulk_filled(entries, Self::REBUILD_LEAF_FILL)
+        self.insert_bulk_filled(entries, Self::LEAF_FILL_WITH_ROOM)
     }
 
     /// [`RTree::insert_bulk`], with `fresh_leaf_fill` entries to a leaf
@@ -220,7 +220,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         for entry in &entries {
             self.proxies[entry.child as usize].fat = entry.bound;
         }
-        self.pack(entries, Self::REBUILD_LEAF_FILL, false);
+        self.pack(entries, Self::LEAF_FILL_WITH_ROOM, false);
     }
 
     /// Packs entries (`child` their proxy, fresh enlarged boxes) into a
@@ -259,7 +259,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
 
     /// How many nodes bulk loading packs `entries` entries of `level` into:
     /// `leaf_fill` entries to a leaf (`W` for a fresh load,
-    /// [`Self::REBUILD_LEAF_FILL`] for a rebuild or a load with room), full
+    /// [`Self::LEAF_FILL_WITH_ROOM`] for a rebuild or a load with room), full
     /// nodes above, except
     /// that leaves go [`Self::LEVEL_ONE_FILL`] to a level-1 node when that
     /// adds no level to the tree.
@@ -315,7 +315,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
     /// for one (15) or three (13) did worse with teleports and respawns
     /// (1,000 frames: teleports 1.39 and 1.42 against 1.22, respawn 1.32
     /// and 1.33 against 1.17), and 13 alone costs 17 % more nodes.
-    pub(super) const REBUILD_LEAF_FILL: usize = W - W / 8;
+    pub(super) const LEAF_FILL_WITH_ROOM: usize = W - W / 8;
 
     /// Reserves room for `additional` more entries and their nodes.
     /// Panics where that many cannot be counted in memory, as
@@ -406,16 +406,31 @@ mod tests {
     use super::*;
     use crate::tree::node::FREE_LEVEL;
 
-    /// A bulk-loaded tree of `count` unit boxes on a 100 m square grid.
+    /// Entry `i` of a 100 m square grid of unit boxes, 3 m apart.
+    fn grid(i: u32) -> (u32, Aabb) {
+        let at = Vec3::new((i % 100) as f32, 0.0, (i / 100) as f32) * 3.0;
+        (i, Aabb::new(at, at + Vec3::ONE).unwrap())
+    }
+
+    /// A bulk-loaded tree of the grid's first `count` entries.
     fn grid_tree(count: u32) -> RTree<u32, 16> {
         let mut tree = RTree::new();
-        tree.insert_bulk((0..count).map(|i| {
-            let at = Vec3::new((i % 100) as f32, 0.0, (i / 100) as f32) * 3.0;
-            (i, Aabb::new(at, at + Vec3::ONE).unwrap())
-        }))
-        .unwrap();
+        tree.insert_bulk((0..count).map(grid)).unwrap();
         tree.validate().unwrap();
         tree
+    }
+
+    /// How many leaves hold slots that are not one run (as a load gives
+    /// them, in the order of the leaves).
+    fn leaves_not_one_run(tree: &RTree<u32, 16>) -> usize {
+        let leaves = tree.nodes.iter().filter(|n| n.level == 0);
+        let slot_runs = leaves.map(|n| &n.child[..n.len()]);
+        slot_runs
+            .filter(|slots| {
+                let (lo, hi) = (slots.iter().min().unwrap(), slots.iter().max().unwrap());
+                (hi - lo) as usize != slots.len() - 1
+            })
+            .count()
     }
 
     /// The number of children of every node at `level` (free nodes have a
@@ -472,10 +487,6 @@ mod tests {
 
     #[test]
     fn a_load_with_room_leaves_two_lanes_free_in_every_leaf() {
-        let grid = |i: u32| {
-            let at = Vec3::new((i % 100) as f32, 0.0, (i / 100) as f32) * 3.0;
-            (i, Aabb::new(at, at + Vec3::ONE).unwrap())
-        };
         let mut tree = RTree::<u32, 16>::new();
         let ids = tree.insert_bulk_with_room((0..20_000).map(grid)).unwrap();
         tree.validate().unwrap();
@@ -488,11 +499,7 @@ mod tests {
                 .all(|(i, &id)| tree.get(id) == Ok(grid(i as u32)))
         );
         // Each leaf's slots are one run, as in a load packed full.
-        for leaf in tree.nodes.iter().filter(|n| n.level == 0) {
-            let slots = &leaf.child[..leaf.len()];
-            let (lo, hi) = (slots.iter().min().unwrap(), slots.iter().max().unwrap());
-            assert_eq!((hi - lo) as usize, slots.len() - 1, "{slots:?}");
-        }
+        assert_eq!(leaves_not_one_run(&tree), 0);
         // Into a tree that holds entries, the same as `insert_bulk`.
         let mut again = grid_tree(10_000);
         let mut again_roomy = grid_tree(10_000);
@@ -508,20 +515,8 @@ mod tests {
     /// before stale.
     #[test]
     fn an_emptied_tree_loads_as_a_new_one() {
-        let grid = |i: u32| {
-            let at = Vec3::new((i % 100) as f32, 0.0, (i / 100) as f32) * 3.0;
-            (i, Aabb::new(at, at + Vec3::ONE).unwrap())
-        };
         let fresh = grid_tree(2_000);
-        let leaves = |tree: &RTree<u32, 16>| -> Vec<Vec<u32>> {
-            let leaves = tree.nodes.iter().filter(|n| n.level == 0);
-            leaves.map(|n| n.child[..n.len()].to_vec()).collect()
-        };
-        let one_run = |slots: &Vec<u32>| {
-            let (lo, hi) = (slots.iter().min().unwrap(), slots.iter().max().unwrap());
-            (hi - lo) as usize == slots.len() - 1
-        };
-        assert!(leaves(&fresh).iter().all(one_run));
+        assert_eq!(leaves_not_one_run(&fresh), 0);
         for emptied_by_removals in [false, true] {
             let mut tree = RTree::<u32, 16>::new();
             let before = tree.insert_bulk((0..2_000).map(grid)).unwrap();
@@ -542,7 +537,7 @@ mod tests {
             tree.validate().unwrap();
             assert_eq!(fills(&tree, 0), fills(&fresh, 0));
             assert_eq!(tree.height(), fresh.height());
-            let scattered = leaves(&tree).iter().filter(|slots| !one_run(slots)).count();
+            let scattered = leaves_not_one_run(&tree);
             assert_eq!(scattered, 0, "leaves whose slots are not one run");
             assert_eq!(tree.get(ids[7]), Ok(grid(7)));
             assert!(before.iter().all(|&old| tree.get(old).is_err()));

@@ -351,7 +351,7 @@ impl<K: Copy + Ord, const W: usize> RTree<K, W> {
         let groups = if entries.len() <= W {
             1
         } else {
-            Self::groups_at(level, entries.len(), Self::REBUILD_LEAF_FILL)
+            Self::groups_at(level, entries.len(), Self::LEAF_FILL_WITH_ROOM)
         };
         let cuts = vec![(0, entries.len(), 0, groups)];
         Phase::Partition {

@@ -43,7 +43,7 @@ const CATCH_UP_STEPS: usize = 8;
 /// At 60 Hz the work on 100,000 entries spans a frame, so the swap comes
 /// at the first step after it is back; the inserts among the waiting
 /// changes land in the room rebuilt leaves keep
-/// (`RTree::REBUILD_LEAF_FILL`) instead of splitting them. Spread over
+/// (`RTree::LEAF_FILL_WITH_ROOM`) instead of splitting them. Spread over
 /// eight steps instead, each applied that frame's changes to both
 /// structures and the tree swapped in was eight frames behind. The decay
 /// bench at 60 Hz, 1,000 frames, the work on another thread, eight steps
