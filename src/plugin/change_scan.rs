@@ -9,6 +9,9 @@
 
 use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
 
+#[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
+mod sse2;
+
 /// Rows whose ticks are compared into one bit mask before any row is
 /// looked at.
 const BLOCK: usize = 64;
@@ -73,9 +76,23 @@ impl ChangeTest {
     }
 
     /// Bit `i` set where `ticks[i]` is newer than the system's last run
-    /// (at most [`BLOCK`] ticks).
+    /// (at most [`BLOCK`] ticks): a whole block with SSE2 where the target
+    /// has it (`sse2.rs`), the rest row by row.
     #[inline]
     fn newer_mask(self, ticks: &[Tick]) -> u64 {
+        #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
+        if let Ok(block) = <&[Tick; BLOCK]>::try_from(ticks) {
+            #[allow(unsafe_code)]
+            // SAFETY: the function needs SSE2, and this line is compiled
+            // only for targets that have it (every x86-64 target does).
+            return unsafe { sse2::newer_mask_of_block(self, block) };
+        }
+        self.newer_mask_row_by_row(ticks)
+    }
+
+    /// [`Self::newer_mask`] in portable code, one row at a time.
+    #[inline]
+    fn newer_mask_row_by_row(self, ticks: &[Tick]) -> u64 {
         debug_assert!(ticks.len() <= BLOCK);
         let mut mask = 0u64;
         let mut bytes = ticks.chunks_exact(BYTE);
@@ -129,6 +146,53 @@ mod tests {
                     tick.is_newer_than(Tick::new(last), Tick::new(now)),
                     "tick {t}, last run {last}, this run {now}"
                 );
+            }
+        }
+    }
+
+    /// A whole block's mask (the SSE2 path on x86-64) is the row-by-row
+    /// mask, and each bit is Bevy's own `is_newer_than`: ticks drawn around
+    /// the last run, this run, the age cap and anywhere, for runs across
+    /// the counter's wrap and past the cap.
+    #[test]
+    fn a_block_s_mask_is_the_row_by_row_mask_and_bevy_s_answer() {
+        let runs = [
+            (5u32, 10u32),
+            (u32::MAX - 3, 4),
+            (100, 100 + MAX_CHANGE_AGE + 50),
+            (7, 7),
+        ];
+        let mut state = 0x5EED_u64;
+        let mut next = move || {
+            // splitmix64: enough spread for tick values.
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        for (last, now) in runs {
+            let test = ChangeTest::new(Tick::new(last), Tick::new(now));
+            let near = [last, now, now.wrapping_sub(MAX_CHANGE_AGE)];
+            for _ in 0..200 {
+                let ticks: Vec<Tick> = (0..BLOCK)
+                    .map(|_| {
+                        let r = next();
+                        let around = near[(r % 3) as usize];
+                        let t = match (r >> 8) % 3 {
+                            0 => around.wrapping_add((r >> 16) as u32 % 5).wrapping_sub(2),
+                            1 => (r >> 32) as u32,
+                            _ => around,
+                        };
+                        Tick::new(t)
+                    })
+                    .collect();
+                let mask = test.newer_mask(&ticks);
+                assert_eq!(mask, test.newer_mask_row_by_row(&ticks));
+                for (i, tick) in ticks.iter().enumerate() {
+                    let bevy = tick.is_newer_than(Tick::new(last), Tick::new(now));
+                    assert_eq!(mask >> i & 1 == 1, bevy, "tick {tick:?}, run {last}..{now}");
+                }
             }
         }
     }
