@@ -144,6 +144,24 @@ pub(crate) fn prefetch_lines<T>(value: &T) {
     }
 }
 
+/// Requests every cache line any byte of `value` lies on: one more than
+/// [`prefetch_lines`] asks for where `value` is not aligned to a line and
+/// straddles one (a 64-byte `GlobalTransform` in a column aligned to 16).
+#[cfg_attr(not(feature = "bevy_camera"), allow(dead_code))]
+#[inline(always)]
+pub(crate) fn prefetch_every_line<T>(value: &T) {
+    prefetch_lines(value);
+    let size = std::mem::size_of::<T>();
+    if size > 0 {
+        // Any address is sound to prefetch (see `prefetch_address`).
+        prefetch_address(
+            std::ptr::from_ref(value)
+                .cast::<i8>()
+                .wrapping_add(size - 1),
+        );
+    }
+}
+
 /// Requests the cache line holding `address`, which need not point into
 /// any allocation.
 #[inline(always)]
