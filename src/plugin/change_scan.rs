@@ -3,9 +3,10 @@
 //!
 //! The syncs scan every indexed entity each frame for the few that moved.
 //! Through Bevy's row-by-row iteration each row costs a call and a branch;
-//! here a table's tick slices (Bevy's contiguous queries) are compared in
-//! loops of fixed length the compiler turns into vector instructions, 64
-//! rows become one bit mask, and only the rows of its set bits are visited.
+//! here a table's tick slices (Bevy's contiguous queries) are compared a
+//! block at a time (with SSE2 on x86-64, `sse2.rs`: the portable loop
+//! compiles there to a compare and a shift per row), 64 rows become one
+//! bit mask, and only the rows of its set bits are visited.
 
 use bevy_ecs::change_detection::{MAX_CHANGE_AGE, Tick};
 
@@ -16,8 +17,8 @@ mod sse2;
 /// looked at.
 const BLOCK: usize = 64;
 
-/// Rows packed into one byte of a block's mask, in a loop of fixed length
-/// that the compiler turns into vector compares.
+/// Rows packed into one byte of a block's mask by the portable loop (a
+/// table's last, partial block, or a target without SSE2).
 const BYTE: usize = 8;
 
 /// The test a system's `Changed<T>` filter applies to a tick: newer than the
