@@ -42,22 +42,48 @@ pub(super) struct Seen {
     parts: Vec<Part>,
     /// The lists' lengths where the batch under way started.
     batch_start: Vec<u32>,
+    /// The list [`Self::push`] wrote to last (its class is the likeliest
+    /// next).
+    last: usize,
 }
 
 impl Seen {
     /// Lists `entity` once under each visibility class it names, as Bevy
     /// lists a visible entity (twice under a class it names twice; under
     /// none without a `VisibilityClass`).
+    #[inline]
     pub(super) fn push_classes(&mut self, entity: Entity, classes: Option<&VisibilityClass>) {
-        for &class in classes.into_iter().flat_map(|c| c.iter()) {
+        let Some(classes) = classes else {
+            return;
+        };
+        for &class in classes.iter() {
             self.push(entity, class);
         }
     }
 
+    /// Lists `entity` under `class`. Called once per visible entity and
+    /// view, so the list pushed to last is tried first: a scene's
+    /// renderables are mostly of one class.
+    #[inline]
     fn push(&mut self, entity: Entity, class: TypeId) {
-        match self.lists.iter_mut().find(|(c, _)| *c == class) {
-            Some((_, list)) => list.push(entity),
-            None => self.lists.push((class, vec![entity])),
+        match self.lists.get_mut(self.last) {
+            Some((last, list)) if *last == class => list.push(entity),
+            _ => self.push_to_another(entity, class),
+        }
+    }
+
+    /// [`Self::push`] under a class other than the last one's.
+    #[inline(never)]
+    fn push_to_another(&mut self, entity: Entity, class: TypeId) {
+        match self.lists.iter().position(|(c, _)| *c == class) {
+            Some(at) => {
+                self.lists[at].1.push(entity);
+                self.last = at;
+            }
+            None => {
+                self.last = self.lists.len();
+                self.lists.push((class, vec![entity]));
+            }
         }
     }
 
@@ -223,6 +249,54 @@ mod tests {
             expected.iter_mut().for_each(|(_, list)| list.sort());
             seen.sort(&mut spare);
             assert_eq!(seen.lists(), expected, "round {round}: {threads} threads");
+        }
+    }
+
+    /// Each entity is listed under each class it names, as often as it
+    /// names it, whatever the class of the entity before it (the list
+    /// written last is tried first). Fails if an entity lands in another
+    /// class's list.
+    #[test]
+    fn lists_each_entity_under_the_classes_it_names() {
+        struct Sprite;
+        let kinds = [
+            TypeId::of::<Mesh>(),
+            TypeId::of::<Light>(),
+            TypeId::of::<Sprite>(),
+        ];
+        let mut rng = SceneRng::new(0xC1A5);
+        let mut seen = Seen::default();
+        for round in 0..20 {
+            seen.clear();
+            let mut expected: Vec<(TypeId, Vec<Entity>)> = Vec::new();
+            for i in 0..500 {
+                let mut classes = VisibilityClass::default();
+                // Mostly one class for many entities in a row, as a scene's
+                // renderables come; sometimes none, two, or one twice.
+                for _ in 0..[1, 1, 1, 0, 2][rng.below(5)] {
+                    classes.push(kinds[(i / 50 + rng.below(2) * rng.below(3)) % 3]);
+                }
+                let e = entity(i as u32, round);
+                let named = (rng.below(8) != 0).then_some(&classes);
+                seen.push_classes(e, named);
+                for &class in named.into_iter().flat_map(|c| c.iter()) {
+                    match expected.iter_mut().find(|(c, _)| *c == class) {
+                        Some((_, list)) => list.push(e),
+                        None => expected.push((class, vec![e])),
+                    }
+                }
+            }
+            for (class, list) in seen.lists() {
+                let mine = expected.iter().find(|(c, _)| c == class);
+                assert_eq!(
+                    list,
+                    &mine.map_or(Vec::new(), |m| m.1.clone()),
+                    "round {round}"
+                );
+            }
+            for (class, list) in &expected {
+                assert!(seen.lists().iter().any(|(c, l)| c == class && l == list));
+            }
         }
     }
 
