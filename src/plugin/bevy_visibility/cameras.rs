@@ -62,6 +62,8 @@ pub(super) struct Sight {
     camera: Entity,
     frustum: BevyFrustum,
     mask: RenderLayers,
+    /// Whether the camera renders the entities without layers.
+    renders_unlayered: bool,
     /// The camera has `NoCpuCulling`: no frustum test at all.
     pub(super) no_culling: bool,
 }
@@ -142,10 +144,12 @@ pub(super) fn check_visibility_from_index(
         if !state.is_active {
             continue;
         }
+        let mask = mask.cloned().unwrap_or_default();
         let sight = Sight {
             camera,
             frustum: *frustum,
-            mask: mask.cloned().unwrap_or_default(),
+            renders_unlayered: layers::renders_unlayered(&mask),
+            mask,
             no_culling,
         };
         let (mut listed, mut visible) = spare
@@ -369,6 +373,7 @@ pub(super) fn passes_frustum(
 
 /// Bevy's checks before any frustum test: visible in the hierarchy, on a
 /// layer the camera renders, within its visibility range of the camera.
+#[inline]
 pub(super) fn may_be_seen(
     sight: &Sight,
     entity: Entity,
@@ -378,7 +383,13 @@ pub(super) fn may_be_seen(
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && layers::renders(sight.camera, &sight.mask, entity, mask)
+        && match mask {
+            Some(mask) => layers::renders(sight.camera, &sight.mask, entity, Some(mask)),
+            // Most renderables have no layers: Bevy's compare of the
+            // camera's layers with the default, one call per entity and
+            // camera, answered once per camera instead.
+            None => sight.renders_unlayered || entity == sight.camera,
+        }
         && !(has_range
             && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera)))
 }

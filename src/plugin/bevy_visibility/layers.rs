@@ -23,6 +23,12 @@ pub(super) fn renders(
     entity == view || view_mask.intersects(entity_mask.unwrap_or_default())
 }
 
+/// [`renders`] for every entity without layers other than the view's own:
+/// the same answer for all of them, so a view finds it once.
+pub(super) fn renders_unlayered(view_mask: &RenderLayers) -> bool {
+    view_mask.intersects(Default::default())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -49,6 +55,11 @@ mod tests {
                 "{mask:?} on its own entity"
             );
             assert!(renders(view, mask, view, Some(mask)));
+            assert_eq!(
+                renders_unlayered(mask),
+                renders(view, mask, other, None),
+                "{mask:?} against an entity without layers"
+            );
             for entity_mask in &masks {
                 let copy = entity_mask.clone();
                 assert_eq!(
