@@ -18,11 +18,12 @@ use bevy_utils::Parallel;
 use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CAMERAS, candidates};
+use super::layers::ViewLayers;
+use super::radix;
 use super::rows::{RowScratch, decide_proven_by_rows};
 use super::seen::Seen;
 use super::storage_order::decide_in_storage_order;
 use super::{BevyVisibilitySettings, Renderable};
-use super::{layers, radix};
 use crate::plugin::diagnostics::DiagnosticsSink;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
@@ -61,9 +62,7 @@ const VIEWS_PER_PASS: usize = 8;
 pub(super) struct Sight {
     camera: Entity,
     frustum: BevyFrustum,
-    mask: RenderLayers,
-    /// Whether the camera renders the entities without layers.
-    renders_unlayered: bool,
+    layers: ViewLayers,
     /// The camera has `NoCpuCulling`: no frustum test at all.
     pub(super) no_culling: bool,
 }
@@ -144,12 +143,10 @@ pub(super) fn check_visibility_from_index(
         if !state.is_active {
             continue;
         }
-        let mask = mask.cloned().unwrap_or_default();
         let sight = Sight {
             camera,
             frustum: *frustum,
-            renders_unlayered: layers::renders_unlayered(&mask),
-            mask,
+            layers: ViewLayers::new(camera, mask),
             no_culling,
         };
         let (mut listed, mut visible) = spare
@@ -383,13 +380,7 @@ pub(super) fn may_be_seen(
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && match mask {
-            Some(mask) => layers::renders(sight.camera, &sight.mask, entity, Some(mask)),
-            // Most renderables have no layers: Bevy's compare of the
-            // camera's layers with the default, one call per entity and
-            // camera, answered once per camera instead.
-            None => sight.renders_unlayered || entity == sight.camera,
-        }
+        && sight.layers.renders(entity, mask)
         && !(has_range
             && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera)))
 }

@@ -18,6 +18,7 @@ use bevy_transform::prelude::GlobalTransform;
 use glam::Vec3;
 
 use super::frustum_candidates::{UNTESTED_BY_CASCADES, candidates};
+use super::layers::ViewLayers;
 use super::lights::{CasterFilter, LightScratch, OutsideTheTree, may_cast};
 use super::{BevyVisibilitySettings, Renderable};
 use crate::plugin::index::SpatialIndex;
@@ -116,7 +117,7 @@ pub(super) fn check_dir_light_visibility_from_index(
             visible.entities.clear();
             continue;
         }
-        let mask = mask.cloned().unwrap_or_default();
+        let layers = ViewLayers::new(light_entity, mask);
         for (view, view_frusta) in &frusta.frusta {
             let eye = view_transforms
                 .get(*view)
@@ -124,7 +125,7 @@ pub(super) fn check_dir_light_visibility_from_index(
             let Some(lists) = visible.entities.get_mut(view) else {
                 continue;
             };
-            let decide = ((light_entity, &mask), *view, ranges);
+            let decide = (&layers, *view, ranges);
             for (frustum, list) in view_frusta.iter().zip(lists.iter_mut()) {
                 scratch.candidates.clear();
                 candidates(
@@ -177,11 +178,7 @@ pub(super) fn check_dir_light_visibility_from_index(
 fn decide_cascade(
     item: &CascadeCasterItem<'_, '_>,
     (frustum, proven): (&BevyFrustum, bool),
-    (layers, view, ranges): (
-        (Entity, &RenderLayers),
-        Entity,
-        Option<&VisibleEntityRanges>,
-    ),
+    (layers, view, ranges): (&ViewLayers, Entity, Option<&VisibleEntityRanges>),
     out: &mut Vec<Entity>,
 ) {
     let &(entity, inherited, entity_mask, aabb, transform, has_range, nfc) = item;
@@ -211,11 +208,7 @@ fn decide_cascade(
 fn mark_unbounded_casters(
     casters: &Query<CascadeCaster<'_>, CasterFilter>,
     one_by_one: &[Entity],
-    (layers, view, ranges): (
-        (Entity, &RenderLayers),
-        Entity,
-        Option<&VisibleEntityRanges>,
-    ),
+    (layers, view, ranges): (&ViewLayers, Entity, Option<&VisibleEntityRanges>),
     marks: &mut Marks,
 ) {
     for &entity in one_by_one {

@@ -23,10 +23,36 @@ pub(super) fn renders(
     entity == view || view_mask.intersects(entity_mask.unwrap_or_default())
 }
 
-/// [`renders`] for every entity without layers other than the view's own:
-/// the same answer for all of them, so a view finds it once.
-pub(super) fn renders_unlayered(view_mask: &RenderLayers) -> bool {
-    view_mask.intersects(Default::default())
+/// A view's layers as its layer test reads them: the view's entity, its
+/// layers (the default where it has none), and whether it renders the
+/// entities without layers, which is one answer for all of them: most
+/// renderables have no layers, and Bevy's compare of the view's layers
+/// with the default, one out-of-line call per entity and view, is made once
+/// per view instead.
+pub(super) struct ViewLayers {
+    view: Entity,
+    mask: RenderLayers,
+    renders_unlayered: bool,
+}
+
+impl ViewLayers {
+    pub(super) fn new(view: Entity, mask: Option<&RenderLayers>) -> Self {
+        let mask = mask.cloned().unwrap_or_default();
+        ViewLayers {
+            view,
+            renders_unlayered: mask.intersects(Default::default()),
+            mask,
+        }
+    }
+
+    /// [`renders`] for this view.
+    #[inline]
+    pub(super) fn renders(&self, entity: Entity, entity_mask: Option<&RenderLayers>) -> bool {
+        match entity_mask {
+            Some(mask) => renders(self.view, &self.mask, entity, Some(mask)),
+            None => self.renders_unlayered || entity == self.view,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -55,11 +81,6 @@ mod tests {
                 "{mask:?} on its own entity"
             );
             assert!(renders(view, mask, view, Some(mask)));
-            assert_eq!(
-                renders_unlayered(mask),
-                renders(view, mask, other, None),
-                "{mask:?} against an entity without layers"
-            );
             for entity_mask in &masks {
                 let copy = entity_mask.clone();
                 assert_eq!(
@@ -80,5 +101,39 @@ mod tests {
             renders(view, default, view, None),
             default.intersects(Default::default())
         );
+    }
+
+    /// A view's layers answer as [`renders`] does for every pair of masks,
+    /// with and without layers on either side, for the view's own entity
+    /// and another. Fails if the answer for entities without layers is not
+    /// the view's own.
+    #[test]
+    fn a_view_s_layers_answer_as_the_test_per_entity() {
+        let view = Entity::from_raw_u32(1).unwrap();
+        let other = Entity::from_raw_u32(2).unwrap();
+        let masks = [
+            None,
+            Some(RenderLayers::none()),
+            Some(RenderLayers::layer(0)),
+            Some(RenderLayers::layer(1)),
+            Some(RenderLayers::from_layers(&[0, 70])),
+            Some(RenderLayers::from_layers(&[70])),
+        ];
+        for view_mask in &masks {
+            let layers = ViewLayers::new(view, view_mask.as_ref());
+            let view_mask = view_mask.as_ref().unwrap_or_default();
+            for entity_mask in &masks {
+                // Another entity's own component (the view's is never the
+                // same memory as an entity's but its own).
+                let entity_mask = entity_mask.clone();
+                for entity in [view, other] {
+                    assert_eq!(
+                        layers.renders(entity, entity_mask.as_ref()),
+                        renders(view, view_mask, entity, entity_mask.as_ref()),
+                        "{view_mask:?} against {entity_mask:?}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -22,7 +22,8 @@ use bevy_mesh::Mesh3d;
 use bevy_transform::prelude::GlobalTransform;
 use glam::{DVec3, Vec3, Vec3A};
 
-use super::{Renderable, layers};
+use super::Renderable;
+use super::layers::ViewLayers;
 use crate::plugin::index::SpatialIndex;
 use crate::query::QueryWorkspace;
 
@@ -153,8 +154,8 @@ pub(super) fn check_point_light_visibility_from_index(
                 }
                 let sphere = range_sphere(transform, point.range);
                 let shape = Shape::Point(&sphere, frusta);
-                let layers = (light, mask.unwrap_or_default());
-                decide_all(&index, &mut casters, scratch, &shape, layers, in_range);
+                let layers = ViewLayers::new(light, mask);
+                decide_all(&index, &mut casters, scratch, &shape, &layers, in_range);
                 for (face, list) in scratch.faces.iter_mut().enumerate() {
                     list.sort_unstable();
                     let dest = &mut visible.get_mut(face).entities;
@@ -168,8 +169,8 @@ pub(super) fn check_point_light_visibility_from_index(
                 }
                 let sphere = range_sphere(transform, spot.range);
                 let shape = Shape::Spot(&sphere, frustum);
-                let layers = (light, mask.unwrap_or_default());
-                decide_all(&index, &mut casters, scratch, &shape, layers, in_range);
+                let layers = ViewLayers::new(light, mask);
+                decide_all(&index, &mut casters, scratch, &shape, &layers, in_range);
                 let list = &mut scratch.faces[0];
                 list.sort_unstable();
                 visible.entities.clear();
@@ -195,7 +196,7 @@ fn decide_all(
     casters: &mut Query<Caster<'_>, CasterFilter>,
     scratch: &mut LightScratch,
     shape: &Shape<'_>,
-    layers: (Entity, &RenderLayers),
+    layers: &ViewLayers,
     in_range: (Option<Entity>, Option<&VisibleEntityRanges>),
 ) {
     let (Shape::Point(sphere, _) | Shape::Spot(sphere, _)) = shape;
@@ -218,7 +219,7 @@ fn decide_all(
 fn decide_faces(
     item: &mut CasterItem<'_, '_>,
     shape: &Shape<'_>,
-    layers: (Entity, &RenderLayers),
+    layers: &ViewLayers,
     (lod_origin, ranges): (Option<Entity>, Option<&VisibleEntityRanges>),
     faces: &mut [Vec<Entity>; 6],
 ) {
@@ -279,12 +280,12 @@ pub(super) fn may_cast(
     inherited: &InheritedVisibility,
     entity_mask: Option<&RenderLayers>,
     has_range: bool,
-    (light, mask): (Entity, &RenderLayers),
+    layers: &ViewLayers,
     origin: Option<Entity>,
     ranges: Option<&VisibleEntityRanges>,
 ) -> bool {
     inherited.get()
-        && layers::renders(light, mask, entity, entity_mask)
+        && layers.renders(entity, entity_mask)
         && !(has_range
             && ranges.is_some_and(|r| {
                 origin.is_none_or(|origin| !r.entity_is_in_range_of_view(entity, origin))
