@@ -14,7 +14,7 @@ use bevy_ecs::entity::Entity;
 /// `RenderLayers::none()`: a camera, which Bevy's culling tests as any
 /// entity with `Visibility`, or a light that also casts shadows.
 #[inline]
-pub(super) fn renders(
+fn renders(
     view: Entity,
     view_mask: &RenderLayers,
     entity: Entity,
