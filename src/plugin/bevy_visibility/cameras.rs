@@ -60,11 +60,17 @@ const VIEWS_PER_PASS: usize = 8;
 
 /// What Bevy's tests read of one active camera.
 pub(super) struct Sight {
-    camera: Entity,
     frustum: BevyFrustum,
     layers: ViewLayers,
     /// The camera has `NoCpuCulling`: no frustum test at all.
     pub(super) no_culling: bool,
+}
+
+impl Sight {
+    /// The camera's entity (its layers' view).
+    fn camera(&self) -> Entity {
+        self.layers.view()
+    }
 }
 
 /// One active camera as Bevy's culling sees it, and what it saw.
@@ -144,7 +150,6 @@ pub(super) fn check_visibility_from_index(
             continue;
         }
         let sight = Sight {
-            camera,
             frustum: *frustum,
             layers: ViewLayers::new(camera, mask),
             no_culling,
@@ -237,7 +242,7 @@ pub(super) fn check_visibility_from_index(
                 classes.push(*class);
             }
         }
-        let Ok((_, mut visible, ..)) = cameras.get_mut(view.sight.camera) else {
+        let Ok((_, mut visible, ..)) = cameras.get_mut(view.sight.camera()) else {
             continue;
         };
         visible.clear_all();
@@ -382,7 +387,7 @@ pub(super) fn may_be_seen(
     inherited.get()
         && sight.layers.renders(entity, mask)
         && !(has_range
-            && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera)))
+            && ranges.is_some_and(|r| !r.entity_is_in_range_of_view(entity, sight.camera())))
 }
 
 /// Marks `entity` seen by some view, and lists it for this one under each

@@ -36,6 +36,8 @@ pub(super) struct ViewLayers {
 }
 
 impl ViewLayers {
+    /// The layers of the view of entity `view`, `mask` its `RenderLayers`
+    /// if it has them.
     pub(super) fn new(view: Entity, mask: Option<&RenderLayers>) -> Self {
         let mask = mask.cloned().unwrap_or_default();
         ViewLayers {
@@ -43,6 +45,11 @@ impl ViewLayers {
             renders_unlayered: mask.intersects(Default::default()),
             mask,
         }
+    }
+
+    /// The view's entity.
+    pub(super) fn view(&self) -> Entity {
+        self.view
     }
 
     /// [`renders`] for this view.
